@@ -1,0 +1,280 @@
+"""Tests for common.metrics against hand-computed values."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from common.metrics import (
+    METRIC_NAMES,
+    METRICS,
+    best_index,
+    body_rot_error_rad,
+    episode_length_ratio,
+    joint_vel_error,
+    mean_body_pos_error_m,
+    mpjpe_global_mm,
+    mpjpe_local_mm,
+    root_ang_vel_error,
+    root_lin_vel_error,
+    root_pos_error_m,
+    root_rot_error_rad,
+    success,
+    summarise,
+)
+
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+# 90 deg about z: (cos 45, 0, 0, sin 45).
+ROT_Z90 = np.array([math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)])
+# 180 deg about x: (cos 90, sin 90, 0, 0).
+ROT_X180 = np.array([0.0, 1.0, 0.0, 0.0])
+
+
+# ---------------------------------------------------------------- positions
+
+
+def test_mpjpe_global_two_bodies() -> None:
+    sim = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    ref = np.array([[0.0, 0.0, 0.1], [1.0, 0.0, 0.3]])
+    # Distances 0.1 m and 0.3 m -> mean 0.2 m.
+    assert mpjpe_global_mm(sim, ref) == pytest.approx(200.0)
+    assert mean_body_pos_error_m(sim, ref) == pytest.approx(0.2)
+    # Relative to body 0: sim (0,0,0),(1,0,0); ref (0,0,0),(1,0,0.2) -> mean 0.1 m.
+    assert mpjpe_local_mm(sim, ref) == pytest.approx(100.0)
+
+
+def test_constant_shift_is_global_error_only() -> None:
+    sim = np.array([[0.0, 0.0, 1.0], [0.3, -0.2, 1.4], [-0.5, 0.1, 0.2]])
+    ref = sim + np.array([1.0, 2.0, 2.0])
+    # |(1, 2, 2)| = 3 m for every body.
+    assert mpjpe_global_mm(sim, ref) == pytest.approx(3000.0)
+    assert mean_body_pos_error_m(sim, ref) == pytest.approx(3.0)
+    assert mpjpe_local_mm(sim, ref) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_mpjpe_local_root_index() -> None:
+    sim = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    ref = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.3], [2.0, 0.0, 0.0]])
+    # Root 0: errors 0, 0.3, 0 -> 0.1 m.
+    assert mpjpe_local_mm(sim, ref, root_index=0) == pytest.approx(100.0)
+    # Root 1: ref shifted by -0.3 z relative to sim at bodies 0 and 2 -> errors 0.3, 0, 0.3 -> 0.2 m.
+    assert mpjpe_local_mm(sim, ref, root_index=1) == pytest.approx(200.0)
+    # Negative index counts from the end like numpy: body 2 behaves as body 0 here.
+    assert mpjpe_local_mm(sim, ref, root_index=-1) == pytest.approx(100.0)
+    with pytest.raises(IndexError):
+        mpjpe_local_mm(sim, ref, root_index=3)
+
+
+def test_root_pos_error() -> None:
+    assert root_pos_error_m([1.0, 1.0, 1.0], [1.0, 4.0, 5.0]) == pytest.approx(5.0)
+
+
+def test_position_shape_checks() -> None:
+    with pytest.raises(ValueError):
+        mpjpe_global_mm(np.zeros((2, 4)), np.zeros((2, 4)))
+    with pytest.raises(ValueError):
+        mpjpe_global_mm(np.zeros(3), np.zeros(3))
+    with pytest.raises(ValueError):
+        mpjpe_global_mm(np.zeros((5, 2, 3)), np.zeros((4, 2, 3)))
+
+
+# ---------------------------------------------------------------- rotations
+
+
+def test_root_rot_error_quarter_turn_and_sign() -> None:
+    assert root_rot_error_rad(ROT_Z90, IDENTITY) == pytest.approx(math.pi / 2)
+    assert root_rot_error_rad(ROT_X180, IDENTITY) == pytest.approx(math.pi)
+    # q and -q are the same rotation.
+    assert root_rot_error_rad(ROT_Z90, -ROT_Z90) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_body_rot_error_mean_over_bodies() -> None:
+    sim = np.stack([ROT_Z90, IDENTITY, ROT_X180])
+    ref = np.stack([IDENTITY, -IDENTITY, IDENTITY])
+    # Angles pi/2, 0, pi -> mean pi/2.
+    assert body_rot_error_rad(sim, ref) == pytest.approx(math.pi / 2)
+
+
+# ---------------------------------------------------------------- velocities
+
+
+def test_joint_vel_error() -> None:
+    sim = np.array([1.0, -2.0, 3.0, 0.0])
+    ref = np.array([0.0, 0.0, 0.0, 4.0])
+    # (1 + 2 + 3 + 4) / 4.
+    assert joint_vel_error(sim, ref) == pytest.approx(2.5)
+
+
+def test_root_velocity_errors_345() -> None:
+    assert root_lin_vel_error([3.0, 4.0, 0.0], [0.0, 0.0, 0.0]) == pytest.approx(5.0)
+    assert root_lin_vel_error([1.0, 1.0, 1.0], [1.0, 4.0, 5.0]) == pytest.approx(5.0)
+    assert root_ang_vel_error([0.0, 3.0, 0.0], [0.0, 0.0, -4.0]) == pytest.approx(5.0)
+
+
+# ---------------------------------------------------------------- success and length
+
+
+def test_success_one_frame_exceeds() -> None:
+    assert not success(np.array([0.1, 0.6, 0.2]))
+
+
+def test_success_equal_to_threshold_passes() -> None:
+    assert success(np.array([0.5, 0.5, 0.0]))
+    assert not success(np.array([0.3, 0.3]), threshold_m=0.2)
+
+
+def test_success_ignores_invalid_frames() -> None:
+    err = np.array([0.1, 0.2, 0.9])
+    assert not success(err)
+    assert success(err, valid=np.array([True, True, False]))
+
+
+def test_success_nan_in_valid_frame_fails() -> None:
+    err = np.array([0.1, np.nan])
+    assert not success(err)
+    assert success(err, valid=np.array([True, False]))
+
+
+def test_success_terminated_forces_failure() -> None:
+    err = np.array([[0.1, 0.1], [0.1, 0.1], [0.1, 0.7]])
+    out = success(err, terminated=np.array([False, True, False]))
+    assert out.dtype == np.bool_
+    np.testing.assert_array_equal(out, [True, False, False])
+    assert not success(np.array([0.0, 0.0]), terminated=True)
+
+
+def test_success_batched_with_mask() -> None:
+    err = np.array([[0.1, 0.6, 0.0], [0.1, 0.2, 0.6], [0.5, 0.4, 0.3]])
+    valid = np.array([[True, True, True], [True, True, False], [True, True, True]])
+    np.testing.assert_array_equal(success(err, valid), [False, True, True])
+    with pytest.raises(ValueError):
+        success(err, valid[:, :2])
+
+
+def test_episode_length_ratio() -> None:
+    out = episode_length_ratio(np.array([256, 512, 600, -1, 0]))
+    np.testing.assert_allclose(out, [0.5, 1.0, 1.0, 0.0, 0.0])
+    assert episode_length_ratio(50, max_frames=100) == pytest.approx(0.5)
+    with pytest.raises(ValueError):
+        episode_length_ratio(10, max_frames=0)
+
+
+# ---------------------------------------------------------------- summarise
+
+
+def test_summarise_ignores_invalid_frames() -> None:
+    valid = np.array([[True, True, True], [True, False, False]])
+    per_frame = {
+        "mpjpe_g": np.array([[1.0, 2.0, 3.0], [4.0, 100.0, np.nan]]),
+        "root_pos_err": np.array([[0.0, 0.0, 0.0], [0.8, np.inf, -5.0]]),
+    }
+    out = summarise(per_frame, valid)
+    # (1 + 2 + 3 + 4) / 4 and (0 + 0 + 0 + 0.8) / 4.
+    assert out == {"mpjpe_g": pytest.approx(2.5), "root_pos_err": pytest.approx(0.2)}
+    assert all(type(v) is float for v in out.values())
+
+
+def test_summarise_no_valid_frame_and_shape_mismatch() -> None:
+    out = summarise({"mpjpe_l": np.ones(3)}, np.zeros(3, dtype=bool))
+    assert math.isnan(out["mpjpe_l"])
+    with pytest.raises(ValueError):
+        summarise({"mpjpe_l": np.ones(4)}, np.ones(3, dtype=bool))
+
+
+# ---------------------------------------------------------------- broadcasting
+
+
+def _random_quats(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    q = rng.normal(size=(*shape, 4))
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def test_leading_dims_match_loop() -> None:
+    rng = np.random.default_rng(0)
+    n_t, n_n, n_b, n_d = 4, 3, 5, 7
+    sim_pos = rng.normal(size=(n_t, n_n, n_b, 3))
+    ref_pos = rng.normal(size=(n_t, n_n, n_b, 3))
+    sim_rot = _random_quats(rng, (n_t, n_n, n_b))
+    ref_rot = _random_quats(rng, (n_t, n_n, n_b))
+    sim_dof = rng.normal(size=(n_t, n_n, n_d))
+    ref_dof = rng.normal(size=(n_t, n_n, n_d))
+
+    batched = {
+        "g": mpjpe_global_mm(sim_pos, ref_pos),
+        "l": mpjpe_local_mm(sim_pos, ref_pos, root_index=2),
+        "m": mean_body_pos_error_m(sim_pos, ref_pos),
+        "rp": root_pos_error_m(sim_pos[..., 0, :], ref_pos[..., 0, :]),
+        "rr": root_rot_error_rad(sim_rot[..., 0, :], ref_rot[..., 0, :]),
+        "br": body_rot_error_rad(sim_rot, ref_rot),
+        "jv": joint_vel_error(sim_dof, ref_dof),
+        "lv": root_lin_vel_error(sim_pos[..., 1, :], ref_pos[..., 1, :]),
+        "av": root_ang_vel_error(sim_pos[..., 2, :], ref_pos[..., 2, :]),
+    }
+    for value in batched.values():
+        assert value.shape == (n_t, n_n)
+    for t in range(n_t):
+        for n in range(n_n):
+            sp, rp = sim_pos[t, n], ref_pos[t, n]
+            sr, rr = sim_rot[t, n], ref_rot[t, n]
+            looped = {
+                "g": mpjpe_global_mm(sp, rp),
+                "l": mpjpe_local_mm(sp, rp, root_index=2),
+                "m": mean_body_pos_error_m(sp, rp),
+                "rp": root_pos_error_m(sp[0], rp[0]),
+                "rr": root_rot_error_rad(sr[0], rr[0]),
+                "br": body_rot_error_rad(sr, rr),
+                "jv": joint_vel_error(sim_dof[t, n], ref_dof[t, n]),
+                "lv": root_lin_vel_error(sp[1], rp[1]),
+                "av": root_ang_vel_error(sp[2], rp[2]),
+            }
+            for key, value in looped.items():
+                assert batched[key][t, n] == pytest.approx(float(value), rel=1e-12, abs=1e-12), key
+
+    # success reduces the trailing (T) dim only: (N, T) -> (N,).
+    err_nt = np.moveaxis(batched["m"], 0, -1) / 4.0
+    expected = [bool(np.all(err_nt[n] <= 0.5)) for n in range(n_n)]
+    np.testing.assert_array_equal(success(err_nt), expected)
+
+
+def test_reference_broadcasts_against_batch() -> None:
+    sim = np.zeros((2, 2, 3))
+    sim[1] += np.array([0.0, 3.0, 4.0])
+    ref = np.zeros((2, 3))
+    np.testing.assert_allclose(mpjpe_global_mm(sim, ref), [0.0, 5000.0])
+
+
+# ---------------------------------------------------------------- registry
+
+
+def test_metric_registry() -> None:
+    assert METRIC_NAMES == (
+        "mpjpe_g",
+        "mpjpe_l",
+        "root_pos_err",
+        "root_rot_err",
+        "body_rot_err",
+        "joint_vel_err",
+        "root_vel_err",
+        "root_ang_vel_err",
+        "success",
+        "episode_len_ratio",
+    )
+    assert METRICS["mpjpe_g"].unit == "mm"
+    assert METRICS["root_pos_err"].unit == "m"
+    assert METRICS["joint_vel_err"].unit == "rad/s"
+    higher = {k for k, m in METRICS.items() if m.higher_is_better}
+    assert higher == {"success", "episode_len_ratio"}
+    assert METRICS["mpjpe_l"].direction == "lower is better"
+    assert METRICS["success"].direction == "higher is better"
+
+
+def test_best_index() -> None:
+    assert best_index("mpjpe_g", [30.0, 12.0, 50.0]) == 1
+    assert best_index("success", [0.7, 0.95, 0.9]) == 1
+    assert best_index("mpjpe_g", [np.nan, 40.0, 20.0]) == 2
+    with pytest.raises(ValueError):
+        best_index("success", [np.nan])
+    with pytest.raises(KeyError):
+        best_index("not_a_metric", [1.0])
