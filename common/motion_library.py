@@ -108,7 +108,9 @@ def cycle_transform(clip: Clip) -> tuple[float, np.ndarray]:
 
 
 def cycle_power(yaw: np.ndarray, shift: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Delta^c for integer c (negative c gives the inverse), vectorised: z -> e^{i c psi} z + t (1 - e^{i c psi}) / (1 - e^{i psi}).
+    """Delta^c for integer c (negative c gives the inverse), vectorised.
+
+    As a complex map of the ground plane: z -> e^{i c psi} z + t (1 - e^{i c psi}) / (1 - e^{i psi}).
 
     Args:
         yaw: Cycle yaw psi. Shape: (N,).
