@@ -1,0 +1,251 @@
+"""Motion import, the motion library and the HDF5 motion dataset."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from common.humanoid import Humanoid
+from common.motion import MotionFormatError, read_clip_pack, read_deepmimic, y_up_to_z_up_pos, y_up_to_z_up_quat
+from common.motion_cli import lowest_foot_point
+from common.motion_dataset import bundled_motion_dir, load_dataset, resolve_clips, save_dataset
+from common.motion_library import MotionLibrary
+from common.rotations import angular_velocity, quat_geodesic_angle, quat_rotate, quat_yaw
+
+DT = 1.0 / 60.0
+
+
+@pytest.fixture(scope="module")
+def humanoid() -> Humanoid:
+    return Humanoid()
+
+
+@pytest.fixture(scope="module")
+def walk_lib(humanoid: Humanoid) -> MotionLibrary:
+    return MotionLibrary.from_clips(resolve_clips(["walk"]), humanoid)
+
+
+@pytest.fixture(scope="module")
+def lib3(humanoid: Humanoid) -> MotionLibrary:
+    return MotionLibrary.from_clips(resolve_clips(["walk", "run", "kick"]), humanoid)
+
+
+def _row(dur: float = 1 / 30, knee: float = 0.0) -> list[float]:
+    ident = [1.0, 0.0, 0.0, 0.0]
+    row = [dur, 0.0, 0.85, 0.0, *ident]
+    for kind in ("s", "s", "s", "r", "s", "s", "r", "s", "r", "s", "s", "r"):
+        row += ident if kind == "s" else [knee]
+    assert len(row) == 44
+    return row
+
+
+def _write(tmp_path: Path, frames: object, loop: str = "none", name: str = "clip.txt") -> Path:
+    p = tmp_path / name
+    p.write_text(json.dumps({"Loop": loop, "Frames": frames}))
+    return p
+
+
+def test_y_up_to_z_up_by_hand() -> None:
+    np.testing.assert_allclose(y_up_to_z_up_pos(np.array([1.0, 2.0, 3.0])), [1.0, -3.0, 2.0])
+    c, s = math.cos(math.pi / 4), math.sin(math.pi / 4)
+    # 90 deg about Y (DeepMimic's vertical) is 90 deg about Z (ours); 90 deg about Y-up's Z is 90 deg about -Y.
+    np.testing.assert_allclose(y_up_to_z_up_quat(np.array([c, 0, s, 0])), [c, 0, 0, s], atol=1e-12)
+    np.testing.assert_allclose(y_up_to_z_up_quat(np.array([c, 0, 0, s])), [c, 0, -s, 0], atol=1e-12)
+
+
+def test_knee_angle_is_negated_onto_plus_y(tmp_path: Path, humanoid: Humanoid) -> None:
+    clip = read_deepmimic(_write(tmp_path, [_row(knee=-0.5), _row(knee=-0.5)]))
+    lib = MotionLibrary.from_clips([clip], humanoid)
+    knee = next(g for g in humanoid.joint_groups if g.name == "right_knee")
+    np.testing.assert_allclose(lib.frames.qpos[:, knee.qpos[0]], 0.5, atol=1e-12)
+    # Flexing the knee moves the ankle backwards (-x) for a character facing +x.
+    ankle_x = lib.frames.body_pos[0, humanoid.body_index("right_foot"), 0]
+    assert ankle_x == pytest.approx(-0.40987 * math.sin(0.5), abs=1e-9)
+
+
+def test_resampling_hits_source_keyframes(walk_lib: MotionLibrary) -> None:
+    src = resolve_clips(["walk"])[0]  # 30 fps source: every second 60 Hz frame is a keyframe
+    assert src.source_fps == pytest.approx(30.0, rel=1e-3)
+    k = np.arange(0, 30)
+    t = src.times[k]
+    got = walk_lib.query(np.zeros(len(k), dtype=int), t).qpos[:, :2]
+    # Keyframes are 0.033332 s apart (not exactly 1/30 s), so they sit a hair off the grid: microns, not frames.
+    np.testing.assert_allclose(got, src.root_pos[k, :2], atol=2e-5)
+
+
+def test_walk_feet_stay_near_ground(walk_lib: MotionLibrary, humanoid: Humanoid) -> None:
+    low = lowest_foot_point(humanoid, walk_lib.frames.body_pos, walk_lib.frames.body_rot)
+    assert -0.01 < low.min() < 0.0 and 0.0 < low.max() < 0.02  # data README: -0.005 .. +0.014 m
+
+
+def test_velocities_match_finite_differences(lib3: MotionLibrary) -> None:
+    f = lib3.frames
+    for c in range(lib3.num_clips):
+        s = slice(lib3.start[c] + 1, lib3.start[c] + lib3.num_frames[c] - 1)
+        prev = slice(s.start - 1, s.stop - 1)
+        nxt = slice(s.start + 1, s.stop + 1)
+        fd_lin = (f.body_pos[nxt] - f.body_pos[prev]) / (2 * DT)
+        fd_ang = angular_velocity(f.body_rot[prev], f.body_rot[nxt], 2 * DT)
+        # Central differences of a smooth motion agree to a small fraction of the speed.
+        scale = np.abs(f.body_linvel[s]).max()
+        assert np.abs(fd_lin - f.body_linvel[s]).mean() < 0.02 * scale, lib3.names[c]
+        assert np.abs(fd_ang - f.body_angvel[s]).mean() < 0.02 * np.abs(f.body_angvel[s]).max(), lib3.names[c]
+        fd_q = (f.qpos[nxt, 7:] - f.qpos[prev, 7:]) / (2 * DT)
+        np.testing.assert_allclose(f.qvel[s, 6:], fd_q, atol=1e-9)
+
+
+def test_wrap_clip_continuous_across_loop(walk_lib: MotionLibrary) -> None:
+    dur = walk_lib.duration[0]
+    eps = 1e-7
+    for cycle in (1, 2, 5):
+        before = walk_lib.query(np.array([0]), np.array([cycle * dur - eps]))
+        after = walk_lib.query(np.array([0]), np.array([cycle * dur + eps]))
+        np.testing.assert_allclose(before.qpos[:, :3], after.qpos[:, :3], atol=1e-5)
+        # The cycle is not a whole number of grid steps, so each side interpolates other grid frames: the two
+        # piecewise-linear curves differ by O(dt^2 * curvature) at the seam (here ~3e-5 rad), not by a jump.
+        assert quat_yaw(before.qpos[0, 3:7]) == pytest.approx(quat_yaw(after.qpos[0, 3:7]), abs=1e-4)
+        assert np.abs(before.body_pos - after.body_pos).max() < 1e-4
+        assert np.abs(before.body_linvel - after.body_linvel).max() < 0.05
+    # The character keeps walking forward: one cycle later it is one cycle's displacement further along.
+    start = walk_lib.query(np.array([0, 0]), np.array([0.1, 0.1 + 3 * dur]))
+    step = walk_lib.cycle_shift[0, 0]
+    assert step > 0.5
+    assert start.qpos[1, 0] - start.qpos[0, 0] == pytest.approx(3 * step, rel=0.05)
+
+
+def test_one_shot_clip_holds_last_frame(lib3: MotionLibrary) -> None:
+    kick = lib3.clip_index("kick")
+    end = lib3.end_time[kick]
+    assert np.isfinite(end) and not lib3.loop[kick]
+    a = lib3.query(np.array([kick]), np.array([end]))
+    b = lib3.query(np.array([kick]), np.array([end + 10.0]))
+    np.testing.assert_allclose(a.qpos, b.qpos)
+
+
+def test_vectorised_query_equals_single_queries(lib3: MotionLibrary) -> None:
+    rng = np.random.default_rng(0)
+    clips = rng.integers(0, lib3.num_clips, size=40)
+    times = rng.random(40) * 5.0
+    batch = lib3.query(clips, times)
+    for i in range(40):
+        one = lib3.query(clips[i : i + 1], times[i : i + 1])
+        for field in ("qpos", "qvel", "body_pos", "body_rot", "body_linvel", "body_angvel"):
+            np.testing.assert_array_equal(getattr(batch, field)[i], getattr(one, field)[0])
+
+
+def test_query_between_frames_interpolates(walk_lib: MotionLibrary) -> None:
+    a = walk_lib.query(np.array([0]), np.array([3 * DT]))
+    b = walk_lib.query(np.array([0]), np.array([4 * DT]))
+    mid = walk_lib.query(np.array([0]), np.array([3.5 * DT]))
+    np.testing.assert_allclose(mid.body_pos, 0.5 * (a.body_pos + b.body_pos), atol=1e-12)
+    half = quat_geodesic_angle(a.body_rot, mid.body_rot)
+    np.testing.assert_allclose(half, 0.5 * quat_geodesic_angle(a.body_rot, b.body_rot), atol=1e-5)
+
+
+def test_body_states_match_world_rotation_of_offsets(walk_lib: MotionLibrary, humanoid: Humanoid) -> None:
+    """A child's position is its parent's position plus the parent's rotation applied to the joint offset."""
+    f = walk_lib.frames
+    thigh = humanoid.body_index("right_thigh")
+    shin = humanoid.body_index("right_shin")
+    offset = humanoid.model.body_pos[shin + 1]
+    np.testing.assert_allclose(f.body_pos[:, shin], f.body_pos[:, thigh] + quat_rotate(f.body_rot[:, thigh], offset),
+                               atol=1e-12)
+
+
+def test_sample_starts_respects_weights(lib3: MotionLibrary) -> None:
+    rng = np.random.default_rng(1)
+    clips, times = lib3.sample_starts(2000, rng, weights=np.array([1.0, 0.0, 3.0]))
+    assert set(np.unique(clips)) == {0, 2}
+    assert 0.7 < np.mean(clips == 2) < 0.8
+    assert np.all(times >= 0)
+    assert np.all(times[clips == 2] < lib3.end_time[2])  # one-shot: at least one step left
+    np.testing.assert_allclose(times / DT, np.round(times / DT), atol=1e-9)
+    with pytest.raises(ValueError, match="weights"):
+        lib3.sample_starts(3, rng, weights=np.array([0.0, 0.0, 0.0]))
+
+
+def test_bundled_long_clips_load() -> None:
+    clips = read_clip_pack(bundled_motion_dir() / "long_clips.h5")
+    assert len(clips) == 9
+    assert sum(c.duration for c in clips) == pytest.approx(301.0, abs=1.0)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("{not json", "not valid JSON"),
+        (json.dumps({"Loop": "none", "Frames": []}), "no frames"),
+        (json.dumps({"Loop": "none", "Frames": [_row(), _row()[:40]]}), "frame 1: expected 44 values, got 40"),
+        (json.dumps({"Loop": "none", "Frames": [_row(), [*_row()[:5], float("nan"), *_row()[6:]]]}).replace(
+            "NaN", "NaN"), "frame 1: value nan"),
+        (json.dumps({"Loop": "none", "Frames": [_row(), [*_row()[:8], 0, 0, 0, 0, *_row()[12:]]]}),
+         "frame 1: zero-length quaternion for joint 'chest'"),
+        (json.dumps({"Loop": "none", "Frames": [_row(dur=0.0), _row()]}), "frame 0: frame duration must be positive"),
+        (json.dumps({"Loop": "once", "Frames": [_row(), _row()]}), "'Loop' must be one of"),
+    ],
+)
+def test_bad_clip_fails_naming_file_and_frame(tmp_path: Path, content: str, message: str) -> None:
+    p = tmp_path / "bad_clip.txt"
+    p.write_text(content)
+    with pytest.raises(MotionFormatError) as err:
+        read_deepmimic(p)
+    assert str(p) in str(err.value) and message in str(err.value)
+
+
+def test_unknown_motion_spec_lists_bundled_clips() -> None:
+    with pytest.raises(MotionFormatError, match="walk"):
+        resolve_clips(["no_such_clip"])
+
+
+def test_dataset_round_trip(tmp_path: Path, lib3: MotionLibrary, humanoid: Humanoid) -> None:
+    path = tmp_path / "motions.h5"
+    save_dataset(path, lib3, humanoid)
+    back = load_dataset(path, humanoid)
+    assert back.names == lib3.names
+    np.testing.assert_array_equal(back.loop, lib3.loop)
+    rng = np.random.default_rng(2)
+    clips, times = rng.integers(0, 3, 30), rng.random(30) * 4
+    a, b = lib3.query(clips, times), back.query(clips, times)
+    np.testing.assert_array_equal(a.body_pos, b.body_pos)
+    np.testing.assert_array_equal(a.qvel, b.qvel)
+
+
+def test_dataset_truncated_or_other_version_fails_clearly(tmp_path: Path, walk_lib: MotionLibrary,
+                                                          humanoid: Humanoid) -> None:
+    path = tmp_path / "motions.h5"
+    save_dataset(path, walk_lib, humanoid)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.h5"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(MotionFormatError, match="cut.h5"):
+        load_dataset(cut, humanoid)
+    with h5py.File(path, "a") as f:
+        f.attrs["version"] = 99
+    with pytest.raises(MotionFormatError, match="version 99"):
+        load_dataset(path, humanoid)
+    from common.humanoid import PhysicsConfig
+
+    save_dataset(path, walk_lib, humanoid)
+    with pytest.raises(MotionFormatError, match="30.0 Hz"):
+        load_dataset(path, Humanoid(PhysicsConfig(control_hz=30.0)))
+
+
+def test_failed_dataset_write_keeps_good_file(tmp_path: Path, walk_lib: MotionLibrary, humanoid: Humanoid,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / "motions.h5"
+    save_dataset(path, walk_lib, humanoid)
+    good = path.read_bytes()
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(h5py.Group, "create_dataset", broken)
+    with pytest.raises(RuntimeError, match="disk full"):
+        save_dataset(path, walk_lib, humanoid)
+    assert path.read_bytes() == good
+    assert not list(tmp_path.glob("*.tmp"))
