@@ -23,11 +23,7 @@ NUM_ENVS = 256
 MEAN_EPISODE_STEPS = 120
 BODY_STATE = {"pos": (15, 3), "rot": (15, 4), "lin_vel": (15, 3), "ang_vel": (15, 3)}
 FIELDS: dict[str, tuple[tuple[int, ...], str]] = {
-    **{
-        f"{prefix}_{name}": (shape, "float32")
-        for prefix in ("sim", "kin")
-        for name, shape in BODY_STATE.items()
-    },
+    **{f"{prefix}_{name}": (shape, "float32") for prefix in ("sim", "kin") for name, shape in BODY_STATE.items()},
     "pd_targets": ((28,), "float32"),
     "policy_output": ((42,), "float32"),
     "reward": ((), "float32"),
@@ -43,9 +39,7 @@ def rss_bytes() -> int:
 def main() -> None:
     """Build, fill and sample the buffer, printing memory and rates."""
     rng = np.random.default_rng(0)
-    batch = {
-        name: rng.standard_normal((NUM_ENVS, *shape)).astype(dtype) for name, (shape, dtype) in FIELDS.items()
-    }
+    batch = {name: rng.standard_normal((NUM_ENVS, *shape)).astype(dtype) for name, (shape, dtype) in FIELDS.items()}
     episode_id = np.arange(NUM_ENVS, dtype=np.int64)
     next_id = NUM_ENVS
     rows = CAPACITY // NUM_ENVS

@@ -298,9 +298,7 @@ class CyclicBuffer:
             raise ValueError(f"{path}: cannot read buffer file ({type(exc).__name__}: {exc})") from exc
 
     @classmethod
-    def _from_file(
-        cls, f: h5py.File, path: str, fields: FieldSpec | None, capacity: int | None
-    ) -> CyclicBuffer:
+    def _from_file(cls, f: h5py.File, path: str, fields: FieldSpec | None, capacity: int | None) -> CyclicBuffer:
         """Validate an open file's layout and copy its rows into a new buffer."""
         fmt = f.attrs.get("format")
         version = f.attrs.get("version")
@@ -309,22 +307,17 @@ class CyclicBuffer:
         if fmt != FORMAT_NAME:
             raise ValueError(f"{path}: format {fmt!r} is not {FORMAT_NAME!r}")
         if version != LAYOUT_VERSION:
-            raise ValueError(
-                f"{path}: layout version {version!r} is not supported (expected {LAYOUT_VERSION})"
-            )
+            raise ValueError(f"{path}: layout version {version!r} is not supported (expected {LAYOUT_VERSION})")
         names = [str(n) for n in f.attrs["user_fields"]]
         stored: dict[str, tuple[tuple[int, ...], np.dtype]] = {
-            name: (tuple(int(d) for d in f[name].attrs["shape"]), np.dtype(f[name].attrs["dtype"]))
-            for name in names
+            name: (tuple(int(d) for d in f[name].attrs["shape"]), np.dtype(f[name].attrs["dtype"])) for name in names
         }
         if fields is not None:
             expected = {name: (tuple(int(d) for d in s), np.dtype(d)) for name, (s, d) in fields.items()}
             missing = sorted(expected.keys() - stored.keys())
             extra = sorted(stored.keys() - expected.keys())
             if missing or extra:
-                raise ValueError(
-                    f"{path}: fields {missing} are missing from the file, file has extra fields {extra}"
-                )
+                raise ValueError(f"{path}: fields {missing} are missing from the file, file has extra fields {extra}")
             for name, (shape, dtype) in expected.items():
                 if stored[name] != (shape, dtype):
                     raise ValueError(

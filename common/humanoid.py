@@ -117,9 +117,7 @@ class Humanoid:
         self.body_names: tuple[str, ...] = tuple(
             mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, i) for i in range(1, m.nbody)
         )
-        self.joint_groups: tuple[JointGroup, ...] = tuple(
-            self._group(n, b, k) for n, b, k in DEEPMIMIC_JOINTS
-        )
+        self.joint_groups: tuple[JointGroup, ...] = tuple(self._group(n, b, k) for n, b, k in DEEPMIMIC_JOINTS)
         free = m.jnt_type == mujoco.mjtJoint.mjJNT_FREE
         if free.sum() != 1 or m.jnt_qposadr[np.flatnonzero(free)[0]] != 0:
             raise ValueError(f"{self.xml_path}: expected exactly one free joint at qpos[0:7]")
@@ -135,9 +133,7 @@ class Humanoid:
                 raise ValueError(f"{self.xml_path}: joint or actuator '{name + axis}' is missing")
             moved = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, int(m.jnt_bodyid[jid]))
             if moved != body:
-                raise ValueError(
-                    f"{self.xml_path}: joint '{name + axis}' moves body '{moved}', expected '{body}'"
-                )
+                raise ValueError(f"{self.xml_path}: joint '{name + axis}' moves body '{moved}', expected '{body}'")
             qpos.append(int(m.jnt_qposadr[jid]))
             dof.append(int(m.jnt_dofadr[jid]))
             act.append(aid)

@@ -166,9 +166,7 @@ def mpjpe_global_mm(sim_body_pos: ArrayLike, ref_body_pos: ArrayLike) -> NDArray
     return 1000.0 * mean_body_pos_error_m(sim_body_pos, ref_body_pos)
 
 
-def mpjpe_local_mm(
-    sim_body_pos: ArrayLike, ref_body_pos: ArrayLike, root_index: int = 0
-) -> NDArray[np.float64]:
+def mpjpe_local_mm(sim_body_pos: ArrayLike, ref_body_pos: ArrayLike, root_index: int = 0) -> NDArray[np.float64]:
     """Root-relative mean per-joint position error (MPJPE-l).
 
     Each character is translated so that its own root body sits at the origin (translation only, no
@@ -325,9 +323,7 @@ def success(
     return np.asarray(ok, dtype=bool)
 
 
-def episode_length_ratio(
-    length_frames: ArrayLike, max_frames: int = DEFAULT_MAX_FRAMES
-) -> NDArray[np.float64]:
+def episode_length_ratio(length_frames: ArrayLike, max_frames: int = DEFAULT_MAX_FRAMES) -> NDArray[np.float64]:
     """Fraction of the maximum episode length that was played: ``clip(length / max_frames, 0, 1)``.
 
     Args:

@@ -38,9 +38,7 @@ def lowest_foot_point(humanoid: Humanoid, body_pos: np.ndarray, body_rot: np.nda
 
 
 def summary(library: MotionLibrary, sources_fps: dict[str, float], humanoid: Humanoid) -> str:
-    lines = [
-        f"{'clip':<20} {'frames':>6} {'duration':>9} {'src fps':>7} {'loop':>5} {'foot min':>9} {'foot max':>9}"
-    ]
+    lines = [f"{'clip':<20} {'frames':>6} {'duration':>9} {'src fps':>7} {'loop':>5} {'foot min':>9} {'foot max':>9}"]
     for i, clip in enumerate(library.clips):
         s = slice(library.start[i], library.start[i] + library.num_frames[i])
         low = lowest_foot_point(humanoid, library.frames.body_pos[s], library.frames.body_rot[s])
@@ -60,9 +58,7 @@ def main(argv: list[str] | None = None) -> int:
         prog="mimic-motions", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    s = sub.add_parser(
-        "summary", help="print frames, duration, source fps, loop mode and foot heights per clip"
-    )
+    s = sub.add_parser("summary", help="print frames, duration, source fps, loop mode and foot heights per clip")
     s.add_argument(
         "motions",
         nargs="*",
@@ -73,9 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("motions", nargs="+", help="as for summary")
     c.add_argument("--out", required=True, help="output .h5 file (written atomically)")
     for p in (s, c):
-        p.add_argument(
-            "--control-hz", type=float, default=60.0, help="control and reference rate in Hz (default 60)"
-        )
+        p.add_argument("--control-hz", type=float, default=60.0, help="control and reference rate in Hz (default 60)")
     args = parser.parse_args(argv)
 
     humanoid = Humanoid(PhysicsConfig(control_hz=args.control_hz))

@@ -106,9 +106,7 @@ def save_dataset(path: str | Path, library: MotionLibrary, humanoid: Humanoid) -
                 )
                 g.create_dataset("cycle_shift", data=clip.cycle_shift)
                 for field in FRAME_FIELDS:
-                    g.create_dataset(
-                        field, data=getattr(clip.frames, field), compression="gzip", compression_opts=1
-                    )
+                    g.create_dataset(field, data=getattr(clip.frames, field), compression="gzip", compression_opts=1)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
@@ -138,9 +136,7 @@ def load_dataset(path: str | Path, humanoid: Humanoid) -> MotionLibrary:
                 )
             names = tuple(n.decode() for n in f.attrs["body_names"])
             if names != humanoid.body_names:
-                raise MotionFormatError(
-                    f"{path}: built for bodies {names}, the model has {humanoid.body_names}"
-                )
+                raise MotionFormatError(f"{path}: built for bodies {names}, the model has {humanoid.body_names}")
             groups = sorted(f["clips"].values(), key=lambda g: g.attrs["order"])
             clips = []
             for g in groups:

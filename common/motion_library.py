@@ -146,9 +146,7 @@ def _sample_keyframes(
     jrot = quat_slerp(joint_rot[j], joint_rot[j + 1], w[:, None])
     if clip.loop:
         yaw, shift = cycle_transform(clip)
-        yaw_c, shift_c = cycle_power(
-            np.full_like(cycles, yaw), np.broadcast_to(shift, (len(cycles), 3)), cycles
-        )
+        yaw_c, shift_c = cycle_power(np.full_like(cycles, yaw), np.broadcast_to(shift, (len(cycles), 3)), cycles)
         q_c = quat_from_yaw(yaw_c)
         pos = quat_rotate(q_c, pos) + shift_c
         rot = quat_mul(q_c, rot)
@@ -205,9 +203,7 @@ def resample_clip(clip: Clip, humanoid: Humanoid) -> ClipFrames:
         w_world[-1] = angular_velocity(rot[-2], rot[-1], dt)
         qvel[:, 3:6] = quat_rotate_inv(rot, w_world)
     yaw, shift = cycle_transform(clip) if clip.loop else (0.0, np.zeros(3))
-    return ClipFrames(
-        clip.name, clip.source, clip.loop, clip.duration, yaw, shift, body_states(humanoid, qpos, qvel)
-    )
+    return ClipFrames(clip.name, clip.source, clip.loop, clip.duration, yaw, shift, body_states(humanoid, qpos, qvel))
 
 
 def body_states(humanoid: Humanoid, qpos: np.ndarray, qvel: np.ndarray) -> KinematicState:
@@ -267,9 +263,7 @@ class MotionLibrary:
         self.duration = np.array([c.duration for c in clips])
         self.cycle_yaw = np.array([c.cycle_yaw for c in clips])
         self.cycle_shift = np.stack([c.cycle_shift for c in clips])
-        self.frames = KinematicState(
-            **{f: np.concatenate([getattr(c.frames, f) for c in clips]) for f in FRAME_FIELDS}
-        )
+        self.frames = KinematicState(**{f: np.concatenate([getattr(c.frames, f) for c in clips]) for f in FRAME_FIELDS})
         # The last time a one-shot clip can be queried on its grid; wrap clips never end.
         self.end_time = np.where(self.loop, np.inf, (counts - 1) * control_dt)
 

@@ -362,9 +362,7 @@ def quat_to_euler_xyz_continuous(q_seq: ArrayLike) -> Array:
         prev = out[t - 1]
         e0 = _nearest_branch(principal[t], prev)
         e1 = _nearest_branch(alternative[t], prev)
-        closer = np.sum((e1 - prev) ** 2, axis=-1, keepdims=True) < np.sum(
-            (e0 - prev) ** 2, axis=-1, keepdims=True
-        )
+        closer = np.sum((e1 - prev) ** 2, axis=-1, keepdims=True) < np.sum((e0 - prev) ** 2, axis=-1, keepdims=True)
         out[t] = np.where(closer, e1, e0)
     return out
 

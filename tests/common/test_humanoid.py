@@ -16,8 +16,12 @@ DATA = Path(__file__).resolve().parents[2] / "common" / "data" / "deepmimic"
 AMP_XML = Path(__file__).resolve().parents[1] / "data" / "amp_humanoid.xml"
 
 # DeepMimic joint name -> our body name (the joint's child body).
-BODY_OF = {"root": "pelvis", **{j: b for j, b, _ in DEEPMIMIC_JOINTS}, "right_wrist": "right_hand",
-           "left_wrist": "left_hand"}
+BODY_OF = {
+    "root": "pelvis",
+    **{j: b for j, b, _ in DEEPMIMIC_JOINTS},
+    "right_wrist": "right_hand",
+    "left_wrist": "left_hand",
+}
 
 
 @pytest.fixture(scope="module")

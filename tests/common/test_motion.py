@@ -153,8 +153,9 @@ def test_body_states_match_world_rotation_of_offsets(walk_lib: MotionLibrary, hu
     thigh = humanoid.body_index("right_thigh")
     shin = humanoid.body_index("right_shin")
     offset = humanoid.model.body_pos[shin + 1]
-    np.testing.assert_allclose(f.body_pos[:, shin], f.body_pos[:, thigh] + quat_rotate(f.body_rot[:, thigh], offset),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        f.body_pos[:, shin], f.body_pos[:, thigh] + quat_rotate(f.body_rot[:, thigh], offset), atol=1e-12
+    )
 
 
 def test_sample_starts_respects_weights(lib3: MotionLibrary) -> None:
@@ -181,10 +182,16 @@ def test_bundled_long_clips_load() -> None:
         ("{not json", "not valid JSON"),
         (json.dumps({"Loop": "none", "Frames": []}), "no frames"),
         (json.dumps({"Loop": "none", "Frames": [_row(), _row()[:40]]}), "frame 1: expected 44 values, got 40"),
-        (json.dumps({"Loop": "none", "Frames": [_row(), [*_row()[:5], float("nan"), *_row()[6:]]]}).replace(
-            "NaN", "NaN"), "frame 1: value nan"),
-        (json.dumps({"Loop": "none", "Frames": [_row(), [*_row()[:8], 0, 0, 0, 0, *_row()[12:]]]}),
-         "frame 1: zero-length quaternion for joint 'chest'"),
+        (
+            json.dumps({"Loop": "none", "Frames": [_row(), [*_row()[:5], float("nan"), *_row()[6:]]]}).replace(
+                "NaN", "NaN"
+            ),
+            "frame 1: value nan",
+        ),
+        (
+            json.dumps({"Loop": "none", "Frames": [_row(), [*_row()[:8], 0, 0, 0, 0, *_row()[12:]]]}),
+            "frame 1: zero-length quaternion for joint 'chest'",
+        ),
         (json.dumps({"Loop": "none", "Frames": [_row(dur=0.0), _row()]}), "frame 0: frame duration must be positive"),
         (json.dumps({"Loop": "once", "Frames": [_row(), _row()]}), "'Loop' must be one of"),
     ],
@@ -215,8 +222,9 @@ def test_dataset_round_trip(tmp_path: Path, lib3: MotionLibrary, humanoid: Human
     np.testing.assert_array_equal(a.qvel, b.qvel)
 
 
-def test_dataset_truncated_or_other_version_fails_clearly(tmp_path: Path, walk_lib: MotionLibrary,
-                                                          humanoid: Humanoid) -> None:
+def test_dataset_truncated_or_other_version_fails_clearly(
+    tmp_path: Path, walk_lib: MotionLibrary, humanoid: Humanoid
+) -> None:
     path = tmp_path / "motions.h5"
     save_dataset(path, walk_lib, humanoid)
     data = path.read_bytes()
@@ -235,8 +243,9 @@ def test_dataset_truncated_or_other_version_fails_clearly(tmp_path: Path, walk_l
         load_dataset(path, Humanoid(PhysicsConfig(control_hz=30.0)))
 
 
-def test_failed_dataset_write_keeps_good_file(tmp_path: Path, walk_lib: MotionLibrary, humanoid: Humanoid,
-                                              monkeypatch: pytest.MonkeyPatch) -> None:
+def test_failed_dataset_write_keeps_good_file(
+    tmp_path: Path, walk_lib: MotionLibrary, humanoid: Humanoid, monkeypatch: pytest.MonkeyPatch
+) -> None:
     path = tmp_path / "motions.h5"
     save_dataset(path, walk_lib, humanoid)
     good = path.read_bytes()

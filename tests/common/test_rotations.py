@@ -56,9 +56,7 @@ def test_quat_to_matrix_known() -> None:
 def test_two_axis_takes_columns() -> None:
     np.testing.assert_allclose(rot.quat_to_two_axis([C45, 0, 0, C45]), [0, 1, 0, -1, 0, 0], atol=1e-15)
     np.testing.assert_allclose(rot.quat_to_two_axis(Q_CYCLIC), [0, 1, 0, 0, 0, 1], atol=1e-15)
-    np.testing.assert_allclose(
-        rot.two_axis_to_matrix([0, 2, 0, -1, 5, 0]), [[0, -1, 0], [1, 0, 0], [0, 0, 1]]
-    )
+    np.testing.assert_allclose(rot.two_axis_to_matrix([0, 2, 0, -1, 5, 0]), [[0, -1, 0], [1, 0, 0], [0, 0, 1]])
 
 
 def test_euler_known() -> None:
@@ -85,9 +83,7 @@ def test_yaw_of_heading_times_tilt() -> None:
 def test_rotvec_known() -> None:
     np.testing.assert_allclose(rot.quat_from_rotvec([0, 0, np.pi / 2]), [C45, 0, 0, C45], atol=1e-15)
     np.testing.assert_allclose(rot.quat_from_rotvec(np.zeros(3)), [1, 0, 0, 0])
-    np.testing.assert_allclose(
-        rot.quat_from_rotvec([2e-4, 0, 0]), [np.cos(1e-4), np.sin(1e-4), 0, 0], rtol=1e-15
-    )
+    np.testing.assert_allclose(rot.quat_from_rotvec([2e-4, 0, 0]), [np.cos(1e-4), np.sin(1e-4), 0, 0], rtol=1e-15)
     np.testing.assert_allclose(rot.quat_to_rotvec([-C45, 0, 0, -C45]), [0, 0, np.pi / 2], atol=1e-15)
     # 270 about +Z is 90 about -Z along the shorter path.
     q270 = rot.quat_from_axis_angle([0, 0, 1], 1.5 * np.pi)
