@@ -16,7 +16,7 @@ import numpy as np
 
 from common.humanoid import Humanoid
 from common.motion import CLIP_PACK_FORMAT, Clip, MotionFormatError, read_clip_pack, read_deepmimic
-from common.motion_library import FRAME_FIELDS, ClipFrames, KinematicState, MotionLibrary
+from common.motion_library import FRAME_FIELDS, CharacterState, ClipFrames, MotionLibrary
 
 DATASET_FORMAT = "mimictrack.motion_dataset"
 DATASET_VERSION = 1
@@ -140,7 +140,7 @@ def load_dataset(path: str | Path, humanoid: Humanoid) -> MotionLibrary:
             groups = sorted(f["clips"].values(), key=lambda g: g.attrs["order"])
             clips = []
             for g in groups:
-                frames = KinematicState(**{k: g[k][()] for k in FRAME_FIELDS})
+                frames = CharacterState(**{k: g[k][()] for k in FRAME_FIELDS})
                 clips.append(
                     ClipFrames(
                         g.name.split("/")[-1],

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
-import mujoco
 import numpy as np
 
 from common.humanoid import Humanoid
@@ -39,8 +38,8 @@ from common.rotations import (
 
 
 @dataclass
-class KinematicState:
-    """The reference state of N characters (or T frames). Leading shape: (...,).
+class CharacterState:
+    """The state of N characters (or T frames), simulated or reference. Leading shape: (...,).
 
     Attributes:
         qpos: Model generalised positions. Shape: (..., nq).
@@ -58,11 +57,11 @@ class KinematicState:
     body_linvel: np.ndarray
     body_angvel: np.ndarray
 
-    def __getitem__(self, idx: object) -> KinematicState:
-        return KinematicState(**{f.name: getattr(self, f.name)[idx] for f in fields(self)})
+    def __getitem__(self, idx: object) -> CharacterState:
+        return CharacterState(**{f.name: getattr(self, f.name)[idx] for f in fields(self)})
 
 
-FRAME_FIELDS = tuple(f.name for f in fields(KinematicState))
+FRAME_FIELDS = tuple(f.name for f in fields(CharacterState))
 
 
 @dataclass(frozen=True)
@@ -80,7 +79,7 @@ class ClipFrames:
     duration: float
     cycle_yaw: float
     cycle_shift: np.ndarray
-    frames: KinematicState
+    frames: CharacterState
 
 
 def _bend_loop(clip: Clip) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -206,7 +205,7 @@ def resample_clip(clip: Clip, humanoid: Humanoid) -> ClipFrames:
     return ClipFrames(clip.name, clip.source, clip.loop, clip.duration, yaw, shift, body_states(humanoid, qpos, qvel))
 
 
-def body_states(humanoid: Humanoid, qpos: np.ndarray, qvel: np.ndarray) -> KinematicState:
+def body_states(humanoid: Humanoid, qpos: np.ndarray, qvel: np.ndarray) -> CharacterState:
     """Per-body world states from generalised coordinates with MuJoCo's kinematics.
 
     Args:
@@ -214,32 +213,9 @@ def body_states(humanoid: Humanoid, qpos: np.ndarray, qvel: np.ndarray) -> Kinem
         qpos: Shape: (T, nq).
         qvel: Shape: (T, nv).
     """
-    m = humanoid.model
-    d = mujoco.MjData(m)
-    n = len(qpos)
-    out = KinematicState(
-        qpos.copy(),
-        qvel.copy(),
-        np.empty((n, m.nbody - 1, 3)),
-        np.empty((n, m.nbody - 1, 4)),
-        np.empty((n, m.nbody - 1, 3)),
-        np.empty((n, m.nbody - 1, 3)),
-    )
-    root_of = m.body_rootid[1:]
-    for t in range(n):
-        d.qpos[:] = qpos[t]
-        d.qvel[:] = qvel[t]
-        mujoco.mj_kinematics(m, d)
-        mujoco.mj_comPos(m, d)
-        mujoco.mj_comVel(m, d)
-        out.body_pos[t] = d.xpos[1:]
-        out.body_rot[t] = d.xquat[1:]
-        # cvel is [angular; linear] at the subtree centre of mass of the body's tree root, world orientation;
-        # moved to the body frame origin: v(p) = v_c + w x (p - p_c). (mj_objectVelocity with mjOBJ_XBODY.)
-        w = d.cvel[1:, :3]
-        out.body_angvel[t] = w
-        out.body_linvel[t] = d.cvel[1:, 3:] + np.cross(w, d.xpos[1:] - d.subtree_com[root_of])
-    return out
+    from common.kinematics import ForwardKinematics
+
+    return ForwardKinematics(humanoid)(qpos.copy(), qvel.copy())
 
 
 class MotionLibrary:
@@ -263,7 +239,7 @@ class MotionLibrary:
         self.duration = np.array([c.duration for c in clips])
         self.cycle_yaw = np.array([c.cycle_yaw for c in clips])
         self.cycle_shift = np.stack([c.cycle_shift for c in clips])
-        self.frames = KinematicState(**{f: np.concatenate([getattr(c.frames, f) for c in clips]) for f in FRAME_FIELDS})
+        self.frames = CharacterState(**{f: np.concatenate([getattr(c.frames, f) for c in clips]) for f in FRAME_FIELDS})
         # The last time a one-shot clip can be queried on its grid; wrap clips never end.
         self.end_time = np.where(self.loop, np.inf, (counts - 1) * control_dt)
 
@@ -281,7 +257,7 @@ class MotionLibrary:
         except ValueError:
             raise KeyError(f"no clip '{name}' in the motion library; clips: {self.names}") from None
 
-    def query(self, clip_ids: np.ndarray, times: np.ndarray) -> KinematicState:
+    def query(self, clip_ids: np.ndarray, times: np.ndarray) -> CharacterState:
         """The reference state of N characters at the given clips and times.
 
         Frames are interpolated linearly (rotations by normalised lerp, which equals slerp to 1e-4 rad over one
@@ -292,7 +268,7 @@ class MotionLibrary:
             times: Time in seconds since the clip's start per character. Shape: (N,).
 
         Returns:
-            KinematicState with leading shape (N,).
+            CharacterState with leading shape (N,).
         """
         clip_ids = np.asarray(clip_ids, dtype=np.int64)
         times = np.asarray(times, dtype=np.float64)
@@ -308,7 +284,7 @@ class MotionLibrary:
         w1, w2 = w[:, None], w[:, None, None]
         qpos = a.qpos + w1 * (b.qpos - a.qpos)
         qpos[:, 3:7] = _nlerp(a.qpos[:, 3:7], b.qpos[:, 3:7], w1)
-        state = KinematicState(
+        state = CharacterState(
             qpos=qpos,
             qvel=a.qvel + w1 * (b.qvel - a.qvel),
             body_pos=a.body_pos + w2 * (b.body_pos - a.body_pos),
@@ -351,7 +327,7 @@ def _nlerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
     return quat_normalize(q0 + w * (q1 - q0))
 
 
-def _move(state: KinematicState, q: np.ndarray, shift: np.ndarray) -> None:
+def _move(state: CharacterState, q: np.ndarray, shift: np.ndarray) -> None:
     """Applies a rigid ground-plane transform (rotation q about z, then shift) to a state, in place."""
     qb = q[:, None]
     state.qpos[:, 0:3] = quat_rotate(q, state.qpos[:, 0:3]) + shift

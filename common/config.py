@@ -1,0 +1,365 @@
+"""YAML configs loaded into frozen, possibly nested dataclasses with strict key and type checking.
+
+A config class is a dataclass whose fields are scalars (``int``, ``float``, ``bool``, ``str``, ``Path``),
+``Literal[...]``, ``X | None``, ``tuple[X, ...]`` / ``tuple[X, Y]`` / ``list[X]`` (YAML lists),
+``dict[str, X]`` or another dataclass (a nested YAML mapping, i.e. a section). Typos must never pass
+silently, so unknown keys, wrong types and values outside a ``Literal`` raise :class:`ConfigError` with
+the file name and the dotted key path, e.g. ``configs/x.yaml: unknown key 'train.lrr' (allowed: ...)``.
+
+YAML is read with a safe loader that also resolves YAML 1.2 floats such as ``1e-3``: plain PyYAML follows
+YAML 1.1 and returns the *string* ``'1e-3'``, which would make ``train.lr=1e-3`` a type error.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import os
+import re
+import tempfile
+import types
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_hints
+
+import yaml
+
+T = TypeVar("T")
+
+_MISSING = object()
+
+
+class ConfigError(ValueError):
+    """A config file, mapping or override does not match its dataclass."""
+
+
+class _Loader(yaml.SafeLoader):
+    """Safe loader that also resolves YAML 1.2 floats without a dot (``1e-3``, ``5E+4``)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
+
+
+def parse_yaml(text: str) -> Any:
+    """Parse YAML text with the safe loader used for config files and overrides.
+
+    Args:
+        text: YAML document.
+
+    Returns:
+        The parsed Python object (dicts, lists, scalars).
+    """
+    return yaml.load(text, Loader=_Loader)  # noqa: S506 -- _Loader derives from SafeLoader
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path next to ``path`` that replaces ``path`` only if the block succeeds.
+
+    The temporary file lives in the same folder so that ``os.replace`` is an atomic rename; on any
+    exception it is removed and ``path`` keeps its previous content.
+
+    Args:
+        path: Final destination.
+
+    Yields:
+        Temporary path to write to.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def load_config(cls: type[T], path: str | Path, overrides: Sequence[str] = ()) -> T:
+    """Read a YAML config file, apply command-line overrides and build the dataclass.
+
+    Args:
+        cls: Dataclass type of the config.
+        path: YAML file holding a mapping (an empty file means all defaults).
+        overrides: ``"section.key=value"`` strings; ``value`` is parsed as YAML (``train.lr=1e-3`` is a float).
+
+    Returns:
+        The config instance.
+
+    Raises:
+        ConfigError: On unreadable YAML, a malformed or unknown override, unknown keys, missing required
+            keys, wrong types or a failing ``__post_init__``.
+    """
+    source = str(path)
+    try:
+        data = parse_yaml(Path(path).read_text(encoding="utf-8"))
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{source}: invalid YAML: {e}") from e
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{source}: top level must be a mapping, got {type(data).__name__}")
+    data = apply_overrides(cls, data, overrides)
+    return from_dict(cls, data, source=source)
+
+
+def apply_overrides(cls: type, data: Mapping[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
+    """Return a copy of ``data`` with ``"a.b=value"`` overrides applied, checking keys against ``cls``.
+
+    Keys are checked here rather than left to :func:`from_dict` so that the error names the override
+    instead of blaming the file for a key it does not contain.
+
+    Args:
+        cls: Dataclass type the data is meant for.
+        data: Raw mapping, e.g. parsed YAML.
+        overrides: ``"dotted.key=value"`` strings, applied in order.
+
+    Returns:
+        The updated mapping (nested dicts are copied, ``data`` is not modified).
+
+    Raises:
+        ConfigError: If an override lacks ``=``, has an empty key or names a key ``cls`` does not have.
+    """
+    result = _copy_mappings(data)
+    for override in overrides:
+        key, sep, raw = override.partition("=")
+        key = key.strip()
+        parts = key.split(".")
+        if not sep or not all(parts):
+            raise ConfigError(f"override {override!r}: expected 'section.key=value'")
+        try:
+            value = parse_yaml(raw) if raw.strip() else ""
+        except yaml.YAMLError as e:
+            raise ConfigError(f"override {override!r}: invalid YAML value: {e}") from e
+        section_cls: type | None = cls
+        node = result
+        for depth, part in enumerate(parts):
+            dotted = ".".join(parts[: depth + 1])
+            if section_cls is None:
+                raise ConfigError(f"override {override!r}: '{'.'.join(parts[:depth])}' is not a section")
+            names = _init_field_names(section_cls)
+            if part not in names:
+                raise ConfigError(
+                    f"override {override!r}: unknown key '{dotted}' (allowed: {', '.join(sorted(names))})"
+                )
+            if depth == len(parts) - 1:
+                node[part] = value
+                break
+            section_cls = _dataclass_of(_type_hints(section_cls)[part])
+            child = node.get(part)
+            if not isinstance(child, dict):
+                # A section absent or null in the file starts empty so the override can fill it.
+                child = {}
+                node[part] = child
+            node = child
+    return result
+
+
+def from_dict(cls: type[T], data: Mapping[str, Any], source: str = "<dict>") -> T:
+    """Build a (possibly nested) config dataclass from a mapping, checking keys and types.
+
+    Args:
+        cls: Dataclass type.
+        data: Mapping of field name to value; nested dataclass fields take nested mappings.
+        source: Name of where ``data`` came from (a file name), used as prefix of every error message.
+
+    Returns:
+        The dataclass instance; missing keys take the field defaults.
+
+    Raises:
+        ConfigError: On unknown or missing keys, wrong types, or a ``ValueError`` from ``__post_init__``.
+        TypeError: If ``cls`` is not a dataclass type.
+    """
+    if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
+        raise TypeError(f"{cls!r} is not a dataclass type")
+    return _build(cls, data, source, "")
+
+
+def to_dict(cfg: Any) -> dict[str, Any]:
+    """Convert a config dataclass to plain YAML-safe Python (dicts, lists, scalars).
+
+    Args:
+        cfg: Dataclass instance.
+
+    Returns:
+        Nested dict of its init fields; tuples become lists and paths strings.
+    """
+    if not (dataclasses.is_dataclass(cfg) and not isinstance(cfg, type)):
+        raise TypeError(f"expected a dataclass instance, got {type(cfg).__name__}")
+    return _plain(cfg)
+
+
+def save_config(cfg: Any, path: str | Path) -> None:
+    """Write a config dataclass as YAML atomically (temporary file + ``os.replace``).
+
+    Args:
+        cfg: Dataclass instance; ``load_config(type(cfg), path)`` gives back an equal object.
+        path: Destination file; parent folders are created.
+    """
+    text = yaml.safe_dump(to_dict(cfg), sort_keys=False, default_flow_style=False, allow_unicode=True)
+    with atomic_output(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def _build(cls: type, data: Any, source: str, prefix: str) -> Any:
+    """Recursive worker of :func:`from_dict`; ``prefix`` is the dotted path of this section."""
+    where = f"section '{prefix}'" if prefix else "top level"
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{source}: {where} must be a mapping, got {_show(data)}")
+    hints = _type_hints(cls)
+    names = _init_field_names(cls)
+    for key in data:
+        if key not in names:
+            path = f"{prefix}.{key}" if prefix else str(key)
+            raise ConfigError(f"{source}: unknown key '{path}' (allowed: {', '.join(sorted(names))})")
+    kwargs: dict[str, Any] = {}
+    for field in dataclasses.fields(cls):
+        if not field.init:
+            continue
+        path = f"{prefix}.{field.name}" if prefix else field.name
+        if field.name in data:
+            kwargs[field.name] = _convert(data[field.name], hints[field.name], source, path)
+        elif field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING:
+            raise ConfigError(f"{source}: missing required key '{path}'")
+    try:
+        return cls(**kwargs)
+    except ConfigError:
+        raise
+    except ValueError as e:
+        raise ConfigError(f"{source}: invalid {where}: {e}") from e
+
+
+def _convert(value: Any, tp: Any, source: str, path: str) -> Any:
+    """Check ``value`` against annotation ``tp`` and return it converted (lists to tuples, ints to floats)."""
+    result = _try_convert(value, tp, source, path)
+    if result is _MISSING:
+        raise ConfigError(f"{source}: key '{path}' expects {_type_name(tp)}, got {_show(value)}")
+    return result
+
+
+def _try_convert(value: Any, tp: Any, source: str, path: str) -> Any:
+    """Return the converted value, or ``_MISSING`` if ``value`` does not have type ``tp`` at this level.
+
+    Errors deeper down (inside a nested section or container element) raise directly so that they name
+    the innermost key path.
+    """
+    origin = get_origin(tp)
+    args = get_args(tp)
+    if tp is Any:
+        return value
+    if tp is type(None):
+        return None if value is None else _MISSING
+    if origin in (Union, types.UnionType):
+        if value is None:
+            return None if type(None) in args else _MISSING
+        arms = [a for a in args if a is not type(None)]
+        if len(arms) == 1:
+            return _try_convert(value, arms[0], source, path)
+        for arm in arms:
+            with contextlib.suppress(ConfigError):
+                result = _try_convert(value, arm, source, path)
+                if result is not _MISSING:
+                    return result
+        return _MISSING
+    if origin is Literal:
+        # type() as well as == so that True does not match Literal[1] nor 1 match Literal[1.0].
+        return value if any(type(value) is type(a) and value == a for a in args) else _MISSING
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
+        return _build(tp, value, source, path) if isinstance(value, Mapping) else _MISSING
+    if tp is bool:
+        return value if isinstance(value, bool) else _MISSING
+    if tp is int:
+        return value if isinstance(value, int) and not isinstance(value, bool) else _MISSING
+    if tp is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        return float(value) if ok else _MISSING
+    if tp is str:
+        return value if isinstance(value, str) else _MISSING
+    if tp in (Path, os.PathLike):
+        return Path(value) if isinstance(value, (str, Path)) else _MISSING
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            return _MISSING
+        if origin is tuple and args and not (len(args) == 2 and args[1] is Ellipsis):
+            if len(value) != len(args):
+                return _MISSING
+            return tuple(
+                _convert(v, a, source, f"{path}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True))
+            )
+        elem = args[0] if args else Any
+        items = [_convert(v, elem, source, f"{path}[{i}]") for i, v in enumerate(value)]
+        return tuple(items) if origin is tuple else items
+    if origin is dict:
+        if not isinstance(value, Mapping):
+            return _MISSING
+        key_tp, val_tp = args if args else (Any, Any)
+        return {
+            _convert(k, key_tp, source, f"{path}.<key>"): _convert(v, val_tp, source, f"{path}.{k}")
+            for k, v in value.items()
+        }
+    raise TypeError(f"{source}: key '{path}' has an unsupported annotation {tp!r}")
+
+
+@functools.cache
+def _type_hints(cls: type) -> dict[str, Any]:
+    """Resolved field annotations (works with ``from __future__ import annotations``)."""
+    return get_type_hints(cls)
+
+
+def _init_field_names(cls: type) -> list[str]:
+    """Names of the fields a config file may set, in declaration order."""
+    return [f.name for f in dataclasses.fields(cls) if f.init]
+
+
+def _dataclass_of(tp: Any) -> type | None:
+    """The dataclass type behind ``tp`` (also through ``X | None``), or None if it is not a section."""
+    if get_origin(tp) in (Union, types.UnionType):
+        arms = [a for a in get_args(tp) if a is not type(None)]
+        tp = arms[0] if len(arms) == 1 else None
+    return tp if isinstance(tp, type) and dataclasses.is_dataclass(tp) else None
+
+
+def _type_name(tp: Any) -> str:
+    """Readable annotation, e.g. ``int``, ``float | None``, ``Literal['adam', 'sgd']``."""
+    if tp is type(None):
+        return "None"
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
+        return f"a mapping ({tp.__name__})"
+    if isinstance(tp, type) and get_origin(tp) is None:
+        return tp.__name__
+    if get_origin(tp) in (Union, types.UnionType):
+        return " | ".join(_type_name(a) for a in get_args(tp))
+    return repr(tp).replace("typing.", "")
+
+
+def _show(value: Any) -> str:
+    """Short description of a given value for error messages."""
+    text = repr(value)
+    if len(text) > 60:
+        text = text[:57] + "..."
+    return f"{text} ({type(value).__name__})"
+
+
+def _copy_mappings(data: Mapping[str, Any]) -> dict[str, Any]:
+    """Copy nested mappings (not leaves) so overrides never modify the caller's data."""
+    return {k: _copy_mappings(v) if isinstance(v, Mapping) else v for k, v in data.items()}
+
+
+def _plain(value: Any) -> Any:
+    """Recursive worker of :func:`to_dict`."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value) if f.init}
+    if isinstance(value, Mapping):
+        return {_plain(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    return value
