@@ -217,3 +217,98 @@ class Humanoid:
         if len(ids) != 1:
             raise ValueError(f"{self.xml_path}: body '{name}' has {len(ids)} geoms, expected 1")
         return int(ids[0])
+
+
+def hinges_to_joint_rotations(humanoid: Humanoid, qpos: np.ndarray) -> np.ndarray:
+    """Local rotation of every DeepMimic joint from the hinge angles in qpos.
+
+    Args:
+        humanoid: The model.
+        qpos: Shape: (..., nq).
+
+    Returns:
+        Unit quaternions in ``humanoid.joint_groups`` order. Shape: (..., J=12, 4).
+    """
+    from common.rotations import euler_xyz_to_quat, quat_from_axis_angle
+
+    out = []
+    for g in humanoid.joint_groups:
+        if g.kind == "spherical":
+            out.append(euler_xyz_to_quat(qpos[..., list(g.qpos)]))
+        else:
+            out.append(quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), qpos[..., g.qpos[0]]))
+    return np.stack(out, axis=-2)
+
+
+def joint_rotations_to_hinges(humanoid: Humanoid, rot: np.ndarray, near_qpos: np.ndarray) -> np.ndarray:
+    """Hinge angles (actuator order) realising joint rotations, each chosen nearest the angles in ``near_qpos``.
+
+    A PD target must lie near the joint's current or reference angles: the same rotation 2 pi away would make the
+    position actuator spin the hinge round.
+
+    Args:
+        humanoid: The model.
+        rot: Local joint rotations in ``joint_groups`` order. Shape: (N, J, 4).
+        near_qpos: qpos whose hinge angles the result should be near. Shape: (N, nq).
+
+    Returns:
+        Hinge angle targets in actuator order. Shape: (N, nu).
+    """
+    from common.rotations import quat_to_euler_xyz_near
+
+    out = np.empty((rot.shape[0], humanoid.nu))
+    for j, g in enumerate(humanoid.joint_groups):
+        ref = near_qpos[:, list(g.qpos)]
+        if g.kind == "spherical":
+            out[:, list(g.actuators)] = quat_to_euler_xyz_near(rot[:, j], ref)
+        else:
+            # Angle about the hinge axis, 2 atan2(q_y, q_w), on the 2 pi branch nearest ref.
+            a = 2.0 * np.arctan2(rot[:, j, 2], rot[:, j, 0])
+            out[:, g.actuators[0]] = a + 2.0 * np.pi * np.round((ref[:, 0] - a) / (2.0 * np.pi))
+    return out
+
+
+class BodyGeometry:
+    """Lowest point of every body's collision geom, vectorised over characters (for ground contact checks).
+
+    Spheres and capsules are their centre points/segment ends minus the radius; boxes their eight corners.
+    """
+
+    def __init__(self, humanoid: Humanoid) -> None:
+        from common.rotations import quat_rotate
+
+        m = humanoid.model
+        points, radius = [], []
+        for name in humanoid.body_names:
+            g = humanoid.geom_of_body(name)
+            kind, size = m.geom_type[g], m.geom_size[g]
+            if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+                local, r = np.zeros((1, 3)), size[0]
+            elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+                local, r = np.array([[0.0, 0.0, size[1]], [0.0, 0.0, -size[1]]]), size[0]
+            elif kind == mujoco.mjtGeom.mjGEOM_BOX:
+                signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
+                local, r = signs * size, 0.0
+            else:
+                raise ValueError(f"{humanoid.xml_path}: body '{name}' has an unsupported geom type {kind}")
+            pts = m.geom_pos[g] + quat_rotate(np.asarray(m.geom_quat[g], dtype=np.float64), local)
+            points.append(np.concatenate([pts, np.repeat(pts[:1], 8 - len(pts), axis=0)]))
+            radius.append(r)
+        self.points = np.stack(points)  # (B, 8, 3) support points in the body frame
+        self.radius = np.array(radius)
+
+    def lowest_points(self, body_pos: np.ndarray, body_rot: np.ndarray) -> np.ndarray:
+        """Height of each body's lowest surface point.
+
+        Args:
+            body_pos: Shape: (..., B, 3).
+            body_rot: Shape: (..., B, 4), (w, x, y, z).
+
+        Returns:
+            Shape: (..., B).
+        """
+        w, x, y, z = (body_rot[..., i] for i in range(4))
+        # Third row of the rotation matrix: world z of a body-frame vector.
+        row = np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1)
+        heights = np.einsum("...bk,bpk->...bp", row, self.points)
+        return body_pos[..., 2] + heights.min(axis=-1) - self.radius

@@ -13,35 +13,19 @@ import argparse
 import sys
 import time
 
-import numpy as np
-
-from common.humanoid import Humanoid, PhysicsConfig
+from common.humanoid import BodyGeometry, Humanoid, PhysicsConfig
 from common.motion import MotionFormatError
 from common.motion_dataset import load_motions, resolve_clips, save_dataset
 from common.motion_library import MotionLibrary
 
 
-def lowest_foot_point(humanoid: Humanoid, body_pos: np.ndarray, body_rot: np.ndarray) -> np.ndarray:
-    """Height of the lowest corner of either foot box per frame. Shapes: (T, B, 3), (T, B, 4) -> (T,)."""
-    from common.rotations import quat_rotate
-
-    m = humanoid.model
-    lows = []
-    for name in ("right_foot", "left_foot"):
-        g = humanoid.geom_of_body(name)
-        b = humanoid.body_index(name)
-        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
-        corners = m.geom_pos[g] + quat_rotate(np.asarray(m.geom_quat[g]), signs * m.geom_size[g])
-        world = body_pos[:, None, b] + quat_rotate(body_rot[:, None, b], corners[None])
-        lows.append(world[..., 2].min(axis=1))
-    return np.minimum(*lows)
-
-
 def summary(library: MotionLibrary, sources_fps: dict[str, float], humanoid: Humanoid) -> str:
+    geometry = BodyGeometry(humanoid)
     lines = [f"{'clip':<20} {'frames':>6} {'duration':>9} {'src fps':>7} {'loop':>5} {'foot min':>9} {'foot max':>9}"]
     for i, clip in enumerate(library.clips):
         s = slice(library.start[i], library.start[i] + library.num_frames[i])
-        low = lowest_foot_point(humanoid, library.frames.body_pos[s], library.frames.body_rot[s])
+        low = geometry.lowest_points(library.frames.body_pos[s], library.frames.body_rot[s])[:, humanoid.foot_indices]
+        low = low.min(axis=-1)
         lines.append(
             f"{clip.name:<20} {library.num_frames[i]:>6d} {clip.duration:>8.3f}s {sources_fps.get(clip.name, 0):>7.1f}"
             f" {'wrap' if clip.loop else 'none':>5} {low.min():>+8.3f}m {low.max():>+8.3f}m"

@@ -37,6 +37,7 @@ def _float_dtype(*xs: ArrayLike) -> np.dtype:
 def _arr(x: ArrayLike, *others: ArrayLike) -> Array:
     return np.asarray(x, dtype=_float_dtype(x, *others))
 
+
 def cross(a: Array, b: Array) -> Array:
     """Cross product over the last axis, (..., 3) x (..., 3) -> (..., 3).
 
@@ -46,7 +47,6 @@ def cross(a: Array, b: Array) -> Array:
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
-
 
 
 def quat_mul(a: ArrayLike, b: ArrayLike) -> Array:
