@@ -94,3 +94,34 @@ def flatten_local(features: dict[str, Any]) -> Any:
 def local_vector(body_pos: Any, body_rot: Any, body_linvel: Any, body_angvel: Any) -> Any:
     """Flat ``Local()`` vector. Shape: (..., local_size(B))."""
     return flatten_local(local_features(body_pos, body_rot, body_linvel, body_angvel))
+
+
+def tracking_observation(sim: Any, ref_next: Any, phase: np.ndarray) -> dict[str, np.ndarray]:
+    """Named observation features of a tracking policy (PPO), numpy.
+
+    Args:
+        sim: Simulated CharacterState at time t, leading shape (N,).
+        ref_next: Reference CharacterState at t + dt.
+        phase: Clip phase in [0, 1). Shape: (N,).
+
+    Returns:
+        ``sim_local`` (N, D) and ``ref_local`` (N, D): Local() of each character in its own root frame;
+        ``ref_root_pos`` (N, 3) and ``ref_root_rot`` (N, 6): the reference root in the simulated root's frame
+        (position, two-axis rotation), which Local() alone cannot tell; ``phase`` (N, 2): sin and cos of 2 pi phase.
+    """
+    inv = np_rot.quat_conj(sim.body_rot[:, 0])
+    return {
+        "sim_local": local_vector(sim.body_pos, sim.body_rot, sim.body_linvel, sim.body_angvel),
+        "ref_local": local_vector(ref_next.body_pos, ref_next.body_rot, ref_next.body_linvel, ref_next.body_angvel),
+        "ref_root_pos": np_rot.quat_rotate(inv, ref_next.body_pos[:, 0] - sim.body_pos[:, 0]),
+        "ref_root_rot": np_rot.quat_to_two_axis(np_rot.quat_mul(inv, ref_next.body_rot[:, 0])),
+        "phase": np.stack([np.sin(2 * np.pi * phase), np.cos(2 * np.pi * phase)], axis=-1),
+    }
+
+
+OBSERVATION_KEYS = ("sim_local", "ref_local", "ref_root_pos", "ref_root_rot", "phase")
+
+
+def flatten_observation(obs: dict[str, np.ndarray]) -> np.ndarray:
+    """Concatenates :func:`tracking_observation` features in :data:`OBSERVATION_KEYS` order. Shape: (N, D_obs)."""
+    return np.concatenate([obs[k] for k in OBSERVATION_KEYS], axis=-1)

@@ -152,6 +152,12 @@ class TrackingGym:
     def set_clip_weights(self, weights: np.ndarray | None) -> None:
         self.clip_weights = None if weights is None else np.asarray(weights, dtype=np.float64)
 
+    def phase(self) -> np.ndarray:
+        """Clip phase in [0, 1) of every character: position in the loop (wrap) or in the clip (one-shot)."""
+        dur = self.library.duration[self.clip]
+        t = self.time
+        return np.where(self.library.loop[self.clip], np.mod(t, dur) / dur, np.clip(t / dur, 0.0, 1.0))
+
     def reference_targets(self) -> np.ndarray:
         """PD targets that follow the reference: the hinge angles of ``ref_next``. Shape: (N, nu)."""
         self._require_reset()
@@ -260,6 +266,33 @@ class TrackingGym:
             clip=self.clip.copy(), time=self.time, episode_id=self.episode_id.copy(),
             episode_frame=self.frame.copy(), info=info,
         )  # fmt: skip
+
+    def state_dict(self) -> dict:
+        """Everything needed to continue exactly: physics states, episode bookkeeping, RNG, clip weights."""
+        self._require_reset()
+        return {
+            "sim_state": self.sim.state.copy(), "clip": self.clip.copy(), "start_time": self.start_time.copy(),
+            "frame": self.frame.copy(), "episode_id": self.episode_id.copy(), "next_episode": self._next_episode,
+            "rng": self.rng.bit_generator.state, "clip_weights": self.clip_weights,
+        }  # fmt: skip
+
+    def load_state_dict(self, state: dict) -> StepResult:
+        """Restores :meth:`state_dict` and returns the current state of all characters."""
+        if state["sim_state"].shape != self.sim.state.shape:
+            raise ValueError(f"gym state for {state['sim_state'].shape[0]} characters, this gym has {self.num_envs}")
+        self.sim.state[:] = state["sim_state"]
+        self.clip[:], self.start_time[:] = state["clip"], state["start_time"]
+        self.frame[:], self.episode_id[:] = state["frame"], state["episode_id"]
+        self._next_episode = int(state["next_episode"])
+        self.rng.bit_generator.state = state["rng"]
+        self.set_clip_weights(state["clip_weights"])
+        self._state = self.fk(self.sim.qpos.copy(), self.sim.qvel.copy())
+        # The same floating-point expression as in step() (previous time + dt), so that a resumed run is bit-exact.
+        prev = self.start_time + (self.frame - 1) * self.dt
+        self._ref = self.library.query(self.clip, np.where(self.frame > 0, prev + self.dt, self.start_time))
+        self._ref_next = self.library.query(self.clip, self.time + self.dt)
+        zeros = np.zeros(self.num_envs, dtype=bool)
+        return self._result(np.zeros(self.num_envs), {}, zeros, zeros.copy(), self._state, self._ref, {})
 
     def _require_reset(self) -> None:
         if self._state is None:

@@ -83,6 +83,7 @@ _METRIC_LIST: tuple[MetricInfo, ...] = (
     MetricInfo("root_ang_vel_err", "rad/s", False, "root angular velocity difference norm"),
     MetricInfo("success", "fraction", True, "episodes whose mean body error never exceeds 0.5 m"),
     MetricInfo("episode_len_ratio", "", True, "episode length divided by the maximum length"),
+    MetricInfo("survival", "fraction", True, "episodes played to their full length without termination (SuperTrack)"),
 )
 
 METRICS: dict[str, MetricInfo] = {m.key: m for m in _METRIC_LIST}

@@ -260,12 +260,13 @@ def test_metric_registry() -> None:
         "root_ang_vel_err",
         "success",
         "episode_len_ratio",
+        "survival",
     )
     assert METRICS["mpjpe_g"].unit == "mm"
     assert METRICS["root_pos_err"].unit == "m"
     assert METRICS["joint_vel_err"].unit == "rad/s"
     higher = {k for k, m in METRICS.items() if m.higher_is_better}
-    assert higher == {"success", "episode_len_ratio"}
+    assert higher == {"success", "episode_len_ratio", "survival"}
     assert METRICS["mpjpe_l"].direction == "lower is better"
     assert METRICS["success"].direction == "higher is better"
 
