@@ -66,6 +66,10 @@ class StepResult:
         truncated: The episode hit a time limit or the clip's end at this step. Shape: (N,).
         final_sim: The state the step reached, before any reset (equals ``sim`` where not done).
         final_ref: Reference at the time of ``final_sim``.
+        final_ref_next: Reference one step after ``final_ref`` (to build the observation of ``final_sim``, e.g. for
+            bootstrapping the value of a truncated episode).
+        final_phase: Clip phase of ``final_sim``. Shape: (N,).
+        phase: Clip phase of ``sim`` in [0, 1). Shape: (N,).
         clip: Clip index of the current episode. Shape: (N,).
         time: Clip time of ``sim`` in seconds. Shape: (N,).
         episode_id: Unique id of the current episode. Shape: (N,).
@@ -82,6 +86,9 @@ class StepResult:
     truncated: np.ndarray
     final_sim: CharacterState
     final_ref: CharacterState
+    final_ref_next: CharacterState
+    final_phase: np.ndarray
+    phase: np.ndarray
     clip: np.ndarray
     time: np.ndarray
     episode_id: np.ndarray
@@ -181,7 +188,8 @@ class TrackingGym:
         self._reset_ids(ids, clips, times)
         n = self.num_envs
         zeros = np.zeros(n, dtype=bool)
-        return self._result(np.zeros(n), {}, zeros, zeros.copy(), self._state, self._ref, {})
+        return self._result(np.zeros(n), {}, zeros, zeros.copy(), self._state, self._ref, self._ref_next,
+                            self.phase(), {})  # fmt: skip
 
     def _reset_ids(self, ids: np.ndarray, clips: np.ndarray | None, times: np.ndarray | None) -> None:
         if len(ids) == 0:
@@ -252,17 +260,22 @@ class TrackingGym:
         self._state = CharacterState(**{k: v.copy() for k, v in vars(state).items()})
         self._ref = CharacterState(**{k: v.copy() for k, v in vars(ref).items()})
         self._ref_next = self.library.query(self.clip, self.time + self.dt)
+        final_ref_next = CharacterState(**{k: v.copy() for k, v in vars(self._ref_next).items()})
+        final_phase = self.phase()
         done = np.flatnonzero(terminated | truncated)
         if autoreset and len(done):
             self._reset_ids(done, None, None)
-        return self._result(reward, terms, terminated, truncated, final_sim, final_ref, info)
+        return self._result(
+            reward, terms, terminated, truncated, final_sim, final_ref, final_ref_next, final_phase, info
+        )
 
     def _result(self, reward: np.ndarray, terms: dict[str, np.ndarray], terminated: np.ndarray,
                 truncated: np.ndarray, final_sim: CharacterState, final_ref: CharacterState,
-                info: dict[str, float]) -> StepResult:  # fmt: skip
+                final_ref_next: CharacterState, final_phase: np.ndarray, info: dict[str, float]) -> StepResult:  # fmt: skip
         return StepResult(
             sim=self._state, ref=self._ref, ref_next=self._ref_next, reward=reward, reward_terms=terms,
             terminated=terminated, truncated=truncated, final_sim=final_sim, final_ref=final_ref,
+            final_ref_next=final_ref_next, final_phase=final_phase, phase=self.phase(),
             clip=self.clip.copy(), time=self.time, episode_id=self.episode_id.copy(),
             episode_frame=self.frame.copy(), info=info,
         )  # fmt: skip
@@ -292,7 +305,8 @@ class TrackingGym:
         self._ref = self.library.query(self.clip, np.where(self.frame > 0, prev + self.dt, self.start_time))
         self._ref_next = self.library.query(self.clip, self.time + self.dt)
         zeros = np.zeros(self.num_envs, dtype=bool)
-        return self._result(np.zeros(self.num_envs), {}, zeros, zeros.copy(), self._state, self._ref, {})
+        return self._result(np.zeros(self.num_envs), {}, zeros, zeros.copy(), self._state, self._ref, self._ref_next,
+                            self.phase(), {})  # fmt: skip
 
     def _require_reset(self) -> None:
         if self._state is None:
