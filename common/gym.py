@@ -269,9 +269,18 @@ class TrackingGym:
             reward, terms, terminated, truncated, final_sim, final_ref, final_ref_next, final_phase, info
         )
 
-    def _result(self, reward: np.ndarray, terms: dict[str, np.ndarray], terminated: np.ndarray,
-                truncated: np.ndarray, final_sim: CharacterState, final_ref: CharacterState,
-                final_ref_next: CharacterState, final_phase: np.ndarray, info: dict[str, float]) -> StepResult:  # fmt: skip
+    def _result(
+        self,
+        reward: np.ndarray,
+        terms: dict[str, np.ndarray],
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        final_sim: CharacterState,
+        final_ref: CharacterState,
+        final_ref_next: CharacterState,
+        final_phase: np.ndarray,
+        info: dict[str, float],
+    ) -> StepResult:
         return StepResult(
             sim=self._state, ref=self._ref, ref_next=self._ref_next, reward=reward, reward_terms=terms,
             terminated=terminated, truncated=truncated, final_sim=final_sim, final_ref=final_ref,
