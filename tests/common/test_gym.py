@@ -155,12 +155,12 @@ def test_fallen_character_terminates(library: MotionLibrary, humanoid: Humanoid)
     gym = _gym(library, humanoid, num_envs=1)
     res = gym.reset(clips=np.array([0]), times=np.array([0.0]))
     frozen = np.zeros((1, humanoid.nu))
-    for step in range(300):
+    steps = 0
+    while steps < 300 and not res.terminated[0]:
         res = gym.step(frozen)
-        if res.terminated[0]:
-            break
-    # The head rule is armed from the 48th frame (step index 47) on.
-    assert res.terminated[0] and 47 <= step < 300
+        steps += 1
+    # The head rule is armed from the 48th frame on.
+    assert res.terminated[0] and 48 <= steps < 300
     assert res.final_sim.body_pos[0, humanoid.head_index, 2] < res.final_ref.body_pos[0, humanoid.head_index, 2] - 0.25
     gym.close()
 
