@@ -44,16 +44,19 @@ class ForwardKinematics:
         xquat = np.empty((n, nb, 4))
         cvel = np.empty((n, nb, 6))
         com = np.empty((n, nb, 3))
+        # Views of the MjData arrays and the functions looked up once: the loop body is per-call overhead.
+        d_qpos, d_qvel, d_xpos, d_xquat, d_cvel, d_com = d.qpos, d.qvel, d.xpos, d.xquat, d.cvel, d.subtree_com
+        kinematics, com_pos, com_vel = mujoco.mj_kinematics, mujoco.mj_comPos, mujoco.mj_comVel
         for i in range(n):
-            d.qpos[:] = qpos[i]
-            d.qvel[:] = qvel[i]
-            mujoco.mj_kinematics(m, d)
-            mujoco.mj_comPos(m, d)
-            mujoco.mj_comVel(m, d)
-            xpos[i] = d.xpos
-            xquat[i] = d.xquat
-            cvel[i] = d.cvel
-            com[i] = d.subtree_com
+            d_qpos[:] = qpos[i]
+            d_qvel[:] = qvel[i]
+            kinematics(m, d)
+            com_pos(m, d)
+            com_vel(m, d)
+            xpos[i] = d_xpos
+            xquat[i] = d_xquat
+            cvel[i] = d_cvel
+            com[i] = d_com
         ang = cvel[:, 1:, :3]
         # cvel is [angular; linear] at the subtree centre of mass of the body's tree root (world orientation);
         # at the body origin p: v(p) = v_c + w x (p - p_c), as mj_objectVelocity(mjOBJ_XBODY) gives.

@@ -13,7 +13,7 @@ that pose and velocities stay continuous across the loop point instead of jumpin
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -68,9 +68,8 @@ FRAME_FIELDS = tuple(f.name for f in fields(CharacterState))
 class ClipFrames:
     """One clip on the control-rate grid t_k = k * dt (what the HDF5 dataset stores per clip).
 
-    For a wrap clip the grid runs to the first k with k * dt >= duration (frames past the end come from the next
-    cycle), so that every time in [0, duration) has a frame on either side. For a one-shot clip it ends at the last
-    grid time <= duration.
+    A wrap clip is time-scaled so that its cycle lasts a whole number of steps n; its grid holds frames 0..n, frame n
+    being frame 0 of the next cycle. A one-shot clip's grid ends at the last grid time <= its duration.
     """
 
     name: str
@@ -161,7 +160,11 @@ def resample_clip(clip: Clip, humanoid: Humanoid) -> ClipFrames:
     dt = humanoid.physics.control_dt
     if clip.loop:
         root_pos, root_rot, joint_rot = _bend_loop(clip)
-        n = int(np.ceil(clip.duration / dt - 1e-9)) + 1
+        # A cycle of a whole number of frames keeps every gym time on the grid (queries are plain lookups and the
+        # loop seam is exact): the clip is time-scaled by at most half a step per cycle (<= 1% for the bundled clips).
+        cycle_frames = max(2, int(round(clip.duration / dt)))
+        clip = replace(clip, times=clip.times * (cycle_frames * dt / clip.duration))
+        n = cycle_frames + 1
         k = np.arange(-1, n + 1)
     else:
         root_pos, root_rot, joint_rot = clip.root_pos, clip.root_rot, clip.joint_rot
@@ -277,25 +280,33 @@ class MotionLibrary:
         cycles = np.where(loop, np.floor(times / dur), 0.0)
         local = np.where(loop, times - cycles * dur, np.clip(times, 0.0, self.end_time[clip_ids]))
         u = local / self.dt
-        i0 = np.clip(np.floor(u + 1e-9).astype(np.int64), 0, self.num_frames[clip_ids] - 2)
-        w = np.clip(u - i0, 0.0, 1.0)
+        k = np.rint(u)
+        on_grid = np.abs(u - k) < 1e-6
+        i0 = np.clip(np.where(on_grid, k, np.floor(u)).astype(np.int64), 0, self.num_frames[clip_ids] - 1)
+        state = self.frames[self.start[clip_ids] + i0]
+        off = np.flatnonzero(~on_grid)
+        if len(off):
+            self._interpolate(state, clip_ids[off], i0[off], (u - np.floor(u))[off], off)
+        if np.any(cycles > 0):
+            yaw_c, shift_c = cycle_power(self.cycle_yaw[clip_ids], self.cycle_shift[clip_ids], cycles)
+            _move_yaw(state, yaw_c, shift_c)
+        return state
+
+    def _interpolate(self, state: CharacterState, clip_ids: np.ndarray, i0: np.ndarray, w: np.ndarray,
+                     rows: np.ndarray) -> None:  # fmt: skip
+        """Replaces ``rows`` of ``state`` by the blend of frames i0 and i0 + 1 with weight w (times off the grid)."""
+        i0 = np.minimum(i0, self.num_frames[clip_ids] - 2)
         a = self.frames[self.start[clip_ids] + i0]
         b = self.frames[self.start[clip_ids] + i0 + 1]
         w1, w2 = w[:, None], w[:, None, None]
         qpos = a.qpos + w1 * (b.qpos - a.qpos)
         qpos[:, 3:7] = _nlerp(a.qpos[:, 3:7], b.qpos[:, 3:7], w1)
-        state = CharacterState(
-            qpos=qpos,
-            qvel=a.qvel + w1 * (b.qvel - a.qvel),
-            body_pos=a.body_pos + w2 * (b.body_pos - a.body_pos),
-            body_rot=_nlerp(a.body_rot, b.body_rot, w2),
-            body_linvel=a.body_linvel + w2 * (b.body_linvel - a.body_linvel),
-            body_angvel=a.body_angvel + w2 * (b.body_angvel - a.body_angvel),
-        )
-        if np.any(cycles > 0):
-            yaw_c, shift_c = cycle_power(self.cycle_yaw[clip_ids], self.cycle_shift[clip_ids], cycles)
-            _move(state, quat_from_yaw(yaw_c), shift_c)
-        return state
+        state.qpos[rows] = qpos
+        state.qvel[rows] = a.qvel + w1 * (b.qvel - a.qvel)
+        state.body_pos[rows] = a.body_pos + w2 * (b.body_pos - a.body_pos)
+        state.body_rot[rows] = _nlerp(a.body_rot, b.body_rot, w2)
+        state.body_linvel[rows] = a.body_linvel + w2 * (b.body_linvel - a.body_linvel)
+        state.body_angvel[rows] = a.body_angvel + w2 * (b.body_angvel - a.body_angvel)
 
     def sample_starts(
         self, n: int, rng: np.random.Generator, weights: np.ndarray | None = None
@@ -327,13 +338,36 @@ def _nlerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
     return quat_normalize(q0 + w * (q1 - q0))
 
 
-def _move(state: CharacterState, q: np.ndarray, shift: np.ndarray) -> None:
-    """Applies a rigid ground-plane transform (rotation q about z, then shift) to a state, in place."""
-    qb = q[:, None]
-    state.qpos[:, 0:3] = quat_rotate(q, state.qpos[:, 0:3]) + shift
-    state.qpos[:, 3:7] = quat_mul(q, state.qpos[:, 3:7])
-    state.qvel[:, 0:3] = quat_rotate(q, state.qvel[:, 0:3])
-    state.body_pos[:] = quat_rotate(qb, state.body_pos) + shift[:, None]
-    state.body_rot[:] = quat_mul(qb, state.body_rot)
-    state.body_linvel[:] = quat_rotate(qb, state.body_linvel)
-    state.body_angvel[:] = quat_rotate(qb, state.body_angvel)
+def _rotate_z(v: np.ndarray, c: np.ndarray, s: np.ndarray) -> None:
+    """Rotates vectors about +z in place: (x, y) -> (c x - s y, s x + c y). c, s broadcast against v[..., 0]."""
+    x = v[..., 0].copy()
+    v[..., 0] = c * x - s * v[..., 1]
+    v[..., 1] = s * x + c * v[..., 1]
+
+
+def _yaw_mul(q: np.ndarray, c: np.ndarray, s: np.ndarray) -> None:
+    """Left-multiplies quaternions in place by (c, 0, 0, s), a rotation about +z: by components (w, x, y, z)."""
+    w, x, y, z = (q[..., i].copy() for i in range(4))
+    q[..., 0] = c * w - s * z
+    q[..., 1] = c * x - s * y
+    q[..., 2] = c * y + s * x
+    q[..., 3] = c * z + s * w
+
+
+def _move_yaw(state: CharacterState, yaw: np.ndarray, shift: np.ndarray) -> None:
+    """Applies a ground-plane transform (rotation ``yaw`` about z, then ``shift``) to a state, in place.
+
+    Written for rotations about z only: a handful of component operations instead of general quaternion maths.
+    """
+    c, s = np.cos(yaw), np.sin(yaw)
+    ch, sh = np.cos(0.5 * yaw), np.sin(0.5 * yaw)
+    cb, sb, chb, shb = c[:, None], s[:, None], ch[:, None], sh[:, None]
+    _rotate_z(state.qpos[:, 0:3], c, s)
+    state.qpos[:, 0:2] += shift[:, :2]
+    _yaw_mul(state.qpos[:, 3:7], ch, sh)
+    _rotate_z(state.qvel[:, 0:3], c, s)
+    _rotate_z(state.body_pos, cb, sb)
+    state.body_pos[..., :2] += shift[:, None, :2]
+    _yaw_mul(state.body_rot, chb, shb)
+    _rotate_z(state.body_linvel, cb, sb)
+    _rotate_z(state.body_angvel, cb, sb)

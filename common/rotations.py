@@ -29,6 +29,8 @@ _SMALL_ANGLE = 1e-3
 
 def _float_dtype(*xs: ArrayLike) -> np.dtype:
     """Common floating dtype of the inputs; Python scalars do not force float64 (float32 stays)."""
+    if all(type(x) is np.ndarray and x.dtype == np.float64 for x in xs):
+        return np.dtype(np.float64)  # the common case, without the general type promotion's overhead
     arrays = [np.asarray(x) for x in xs if not isinstance(x, (int, float))]
     dtype = np.result_type(*arrays) if arrays else np.dtype(np.float64)
     return dtype if np.issubdtype(dtype, np.floating) else np.dtype(np.float64)
@@ -41,12 +43,16 @@ def _arr(x: ArrayLike, *others: ArrayLike) -> Array:
 def cross(a: Array, b: Array) -> Array:
     """Cross product over the last axis, (..., 3) x (..., 3) -> (..., 3).
 
-    Written out by component: ``np.cross`` costs several times more on the small batched arrays of the gym's hot
-    path.
+    Written out by component into one output array: ``np.cross`` (and stacking the components) costs several times
+    more on the small batched arrays of the gym's hot path, where per-call overhead dominates.
     """
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), dtype=np.result_type(a, b))
+    np.subtract(a1 * b2, a2 * b1, out=out[..., 0])
+    np.subtract(a2 * b0, a0 * b2, out=out[..., 1])
+    np.subtract(a0 * b1, a1 * b0, out=out[..., 2])
+    return out
 
 
 def quat_mul(a: ArrayLike, b: ArrayLike) -> Array:
@@ -60,18 +66,25 @@ def quat_mul(a: ArrayLike, b: ArrayLike) -> Array:
         Products, shape broadcast(...) + (4,).
     """
     a, b = _arr(a, b), _arr(b, a)
-    aw, av = a[..., :1], a[..., 1:]
-    bw, bv = b[..., :1], b[..., 1:]
-    # (aw, av)(bw, bv) = (aw bw - av.bv, aw bv + bw av + av x bv)
-    w = aw * bw - np.sum(av * bv, axis=-1, keepdims=True)
-    v = aw * bv + bw * av + cross(av, bv)
-    return np.concatenate([w, v], axis=-1)
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    # (aw, av)(bw, bv) = (aw bw - av.bv, aw bv + bw av + av x bv), by component into one output array.
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), dtype=a.dtype)
+    out[..., 0] = aw * bw - ax * bx - ay * by - az * bz
+    out[..., 1] = aw * bx + ax * bw + ay * bz - az * by
+    out[..., 2] = aw * by - ax * bz + ay * bw + az * bx
+    out[..., 3] = aw * bz + ax * by - ay * bx + az * bw
+    return out
 
 
 def quat_conj(q: ArrayLike) -> Array:
     """Conjugate ``(w, -x, -y, -z)``; the inverse of a unit quaternion. Shape (..., 4) -> (..., 4)."""
     q = _arr(q)
-    return np.concatenate([q[..., :1], -q[..., 1:]], axis=-1)
+    # Negating the whole array and restoring w is contiguous work; an in-place update of the strided (..., 1:)
+    # view is several times slower in numpy.
+    out = -q
+    out[..., 0] = q[..., 0]
+    return out
 
 
 def _norm_checked(q: Array) -> Array:
@@ -122,8 +135,12 @@ def quat_rotate(q: ArrayLike, v: ArrayLike) -> Array:
     q, v = _arr(q, v), _arr(v, q)
     w, u = q[..., :1], q[..., 1:]
     # q v q* = v + w t + u x t with t = 2 u x v: two cross products instead of a matrix.
-    t = 2.0 * cross(u, v)
-    return v + w * t + cross(u, t)
+    t = cross(u, v)
+    t *= 2.0
+    out = cross(u, t)
+    out += v
+    out += w * t
+    return out
 
 
 def quat_rotate_inv(q: ArrayLike, v: ArrayLike) -> Array:

@@ -70,11 +70,13 @@ def test_knee_angle_is_negated_onto_plus_y(tmp_path: Path, humanoid: Humanoid) -
 def test_resampling_hits_source_keyframes(walk_lib: MotionLibrary) -> None:
     src = resolve_clips(["walk"])[0]  # 30 fps source: every second 60 Hz frame is a keyframe
     assert src.source_fps == pytest.approx(30.0, rel=1e-3)
+    # The wrap clip is time-scaled to a whole number of frames per cycle: 38 x 0.033332 s -> 76 frames of 1/60 s.
+    assert walk_lib.num_frames[0] == 77 and walk_lib.duration[0] == pytest.approx(76 * DT)
+    scale = walk_lib.duration[0] / src.duration
+    assert abs(scale - 1.0) < 1e-4
     k = np.arange(0, 30)
-    t = src.times[k]
-    got = walk_lib.query(np.zeros(len(k), dtype=int), t).qpos[:, :2]
-    # Keyframes are 0.033332 s apart (not exactly 1/30 s), so they sit a hair off the grid: microns, not frames.
-    np.testing.assert_allclose(got, src.root_pos[k, :2], atol=2e-5)
+    got = walk_lib.query(np.zeros(len(k), dtype=int), src.times[k] * scale).qpos[:, :2]
+    np.testing.assert_allclose(got, src.root_pos[k, :2], atol=1e-9)
 
 
 def test_walk_feet_stay_near_ground(walk_lib: MotionLibrary, humanoid: Humanoid) -> None:
@@ -106,9 +108,7 @@ def test_wrap_clip_continuous_across_loop(walk_lib: MotionLibrary) -> None:
         before = walk_lib.query(np.array([0]), np.array([cycle * dur - eps]))
         after = walk_lib.query(np.array([0]), np.array([cycle * dur + eps]))
         np.testing.assert_allclose(before.qpos[:, :3], after.qpos[:, :3], atol=1e-5)
-        # The cycle is not a whole number of grid steps, so each side interpolates other grid frames: the two
-        # piecewise-linear curves differ by O(dt^2 * curvature) at the seam (here ~3e-5 rad), not by a jump.
-        assert quat_yaw(before.qpos[0, 3:7]) == pytest.approx(quat_yaw(after.qpos[0, 3:7]), abs=1e-4)
+        assert quat_yaw(before.qpos[0, 3:7]) == pytest.approx(quat_yaw(after.qpos[0, 3:7]), abs=1e-5)
         assert np.abs(before.body_pos - after.body_pos).max() < 1e-4
         assert np.abs(before.body_linvel - after.body_linvel).max() < 0.05
     # The character keeps walking forward: one cycle later it is one cycle's displacement further along.
