@@ -81,11 +81,12 @@ class EvalResult:
     def table(self) -> str:
         """A plain-text per-clip table with the overall row."""
         keys = list(M.METRIC_NAMES)
-        head = f"{'clip':<20}" + "".join(f"{k:>17}" for k in keys)
+        width = {k: max(9, len(k) + 2) for k in keys}
+        head = f"{'clip':<20}" + "".join(f"{k:>{width[k]}}" for k in keys)
         rows = [head]
         for i, name in enumerate(self.clips):
-            rows.append(f"{name:<20}" + "".join(f"{self.per_clip[k][i]:>17.4g}" for k in keys))
-        rows.append(f"{'mean over clips':<20}" + "".join(f"{self.overall[k]:>17.4g}" for k in keys))
+            rows.append(f"{name:<20}" + "".join(f"{self.per_clip[k][i]:>{width[k]}.4g}" for k in keys))
+        rows.append(f"{'mean over clips':<20}" + "".join(f"{self.overall[k]:>{width[k]}.4g}" for k in keys))
         return "\n".join(rows)
 
 
