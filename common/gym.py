@@ -130,7 +130,7 @@ class TrackingGym:
         self.dt = self.humanoid.physics.control_dt
         self.rng = np.random.default_rng(config.seed)
         self.sim = BatchedSim(self.humanoid, config.num_envs, config.threads, config.max_speed)
-        self.fk = ForwardKinematics(self.humanoid)
+        self.fk = ForwardKinematics(self.humanoid, config.threads)
         self.geometry = BodyGeometry(self.humanoid)
         self.reward_fn = TrackingReward(self.humanoid, config.reward)
         self.hinge_qpos = self.humanoid.hinge_qpos
@@ -147,6 +147,7 @@ class TrackingGym:
 
     def close(self) -> None:
         self.sim.close()
+        self.fk.close()
 
     @property
     def nu(self) -> int:
