@@ -1,0 +1,197 @@
+"""The ``train-ppo`` config: frozen dataclasses loaded from YAML by :mod:`common.config` (unknown keys rejected).
+
+Sections: ``train`` (run length, evaluation; shared with SuperTrack), ``gym`` (characters, termination, reward),
+``network`` (actor and critic), ``ppo`` (rollouts and the update), ``normalizer`` (observation statistics) and
+``motion_weights`` (PARC's adaptive clip sampling). ``configs/ppo/*.yaml`` document every value with its unit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from common.gym import GymConfig
+from common.rewards import TerminationConfig
+from common.training import TrainConfig
+
+
+def _ppo_gym() -> GymConfig:
+    """PARC-style early termination: the character has failed as soon as it is far off the reference."""
+    return GymConfig(
+        termination=TerminationConfig(
+            max_episode_frames=300, grace_frames=0, head_height_error=None, root_pos_error=1.0,
+            root_rot_error=1.5708, body_pos_error=0.5, min_root_height=0.3, fall_contact="deepmimic",
+        )
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Actor and critic.
+
+    Attributes:
+        actor_hidden: Hidden layer widths of the policy MLP.
+        critic_hidden: Hidden layer widths of the value MLP.
+        activation: Hidden activation.
+        action_scale: Radians of PD-target offset per unit of action: targets = reference hinge angles of the next
+            frame + action_scale * action, so a zero action plays the reference back open loop.
+        log_std_init: Initial log standard deviation of the Gaussian, in action units.
+        learn_std: Learn the log-std (True) or keep it fixed at ``log_std_init`` (DeepMimic, MimicKit, PHC).
+        action_clip: Actions are clipped to [-action_clip, action_clip] before they become PD targets (the stored
+            action and its log-probability stay unclipped); None: no clipping.
+        init_output_gain: Gain of the orthogonal init of the policy's last layer; small so that the initial policy
+            stays near the reference.
+    """
+
+    actor_hidden: tuple[int, ...] = (256, 256)
+    critic_hidden: tuple[int, ...] = (256, 256)
+    activation: Literal["relu", "elu", "tanh"] = "relu"
+    action_scale: float = 0.5
+    log_std_init: float = -1.6
+    learn_std: bool = False
+    action_clip: float | None = 4.0
+    init_output_gain: float = 0.01
+
+    def __post_init__(self) -> None:
+        if not self.actor_hidden or not self.critic_hidden or min(self.actor_hidden + self.critic_hidden) < 1:
+            raise ValueError("actor_hidden and critic_hidden need at least one layer of positive width")
+        if self.action_scale <= 0:
+            raise ValueError(f"action_scale must be positive, got {self.action_scale}")
+        if self.action_clip is not None and self.action_clip <= 0:
+            raise ValueError(f"action_clip must be positive or null, got {self.action_clip}")
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """Rollouts and the PPO update (Schulman et al. 2017) with GAE (Schulman et al. 2016).
+
+    Attributes:
+        rollout_length: Gym steps per iteration; one rollout is rollout_length x num_envs samples.
+        epochs: Passes over the rollout per iteration.
+        minibatch_size: Samples per gradient step; must divide rollout_length x num_envs.
+        gamma: Discount per control step.
+        lam: GAE lambda.
+        clip_ratio: epsilon of the clipped surrogate, ratio clipped to [1 - eps, 1 + eps].
+        value_clip: Clip the new value to old value +- this (PPO2's value clipping); None: plain squared error.
+        normalize_advantages: Standardise the rollout's advantages (zero mean, unit std).
+        advantage_clip: Clip the (standardised) advantages to +- this; None: no clipping.
+        actor_lr: Adam learning rate of the policy (and the log-std).
+        critic_lr: Adam learning rate of the value function.
+        value_coef: Weight of the value loss (the critic has its own parameters, so it only scales its gradients).
+        entropy_coef: Weight of the entropy bonus (useful with a learned log-std only).
+        bound_coef: Weight of the action-bound penalty on the policy mean (MimicKit's action bound loss).
+        action_bound: The penalty acts on |mean| beyond this, in action units.
+        max_grad_norm: Clip the gradient norm of the policy and of the value network, each, to this; None: no
+            clipping.
+        target_kl: Stop the epochs of an iteration early once the mean approx. KL exceeds this; None: never.
+    """
+
+    rollout_length: int = 8
+    epochs: int = 5
+    minibatch_size: int = 512
+    gamma: float = 0.99
+    lam: float = 0.95
+    clip_ratio: float = 0.2
+    value_clip: float | None = None
+    normalize_advantages: bool = True
+    advantage_clip: float | None = 4.0
+    actor_lr: float = 1e-4
+    critic_lr: float = 1e-3
+    value_coef: float = 0.5
+    entropy_coef: float = 0.0
+    bound_coef: float = 10.0
+    action_bound: float = 2.0
+    max_grad_norm: float | None = 1.0
+    target_kl: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.rollout_length < 1 or self.epochs < 1 or self.minibatch_size < 1:
+            raise ValueError("rollout_length, epochs and minibatch_size must be >= 1")
+        if not (0.0 <= self.gamma <= 1.0 and 0.0 <= self.lam <= 1.0):
+            raise ValueError(f"gamma and lam must lie in [0, 1], got {self.gamma}, {self.lam}")
+        if self.clip_ratio <= 0 or self.actor_lr <= 0 or self.critic_lr <= 0:
+            raise ValueError("clip_ratio, actor_lr and critic_lr must be positive")
+
+
+@dataclass(frozen=True)
+class NormalizerConfig:
+    """Running mean/std of the observation.
+
+    Attributes:
+        clip: Normalised features are clipped to [-clip, clip].
+        epsilon: Floor of the standard deviation (features that never vary are only centred).
+        exclude: Observation features (names from ``common.features.OBSERVATION_KEYS``) left as they are because
+            they are already bounded, e.g. the phase's sin and cos.
+        max_samples: Stop updating the statistics after this many samples (MimicKit's normalizer_samples); None:
+            update throughout training. Evaluation always uses frozen statistics.
+    """
+
+    clip: float = 5.0
+    epsilon: float = 1e-2
+    exclude: tuple[str, ...] = ("phase",)
+    max_samples: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.clip <= 0 or self.epsilon <= 0:
+            raise ValueError("normalizer clip and epsilon must be positive")
+
+
+@dataclass(frozen=True)
+class MotionWeightConfig:
+    """PARC's adaptive motion weighting: clips that fail more often are sampled more often at reset.
+
+    Attributes:
+        enabled: Feed the weights to the gym (False: uniform clip sampling; failure rates are still tracked).
+        ema_weight: w in rate <- (1 - w) rate + w * failed, per finished episode.
+        init_failure_rate: Failure rate every clip starts with (1: every clip is presumed hard).
+        thresholds: Upper bounds of the failure-rate buckets, increasing.
+        bucket_weights: Sampling weight of each bucket; one more than ``thresholds`` (the last is for rates above
+            the last threshold).
+        min_weight: Lower bound of every weight.
+    """
+
+    enabled: bool = True
+    ema_weight: float = 0.01
+    init_failure_rate: float = 1.0
+    thresholds: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7)
+    bucket_weights: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 1.0)
+    min_weight: float = 0.01
+
+    def __post_init__(self) -> None:
+        if len(self.bucket_weights) != len(self.thresholds) + 1:
+            raise ValueError("bucket_weights needs exactly one entry more than thresholds")
+        if list(self.thresholds) != sorted(self.thresholds):
+            raise ValueError(f"thresholds must increase, got {self.thresholds}")
+        if not 0.0 < self.ema_weight <= 1.0:
+            raise ValueError(f"ema_weight must lie in (0, 1], got {self.ema_weight}")
+        if self.min_weight <= 0 or min(self.bucket_weights) < 0:
+            raise ValueError("min_weight must be positive and bucket_weights non-negative")
+
+
+@dataclass(frozen=True)
+class PPOTrackerConfig:
+    """Everything ``train-ppo`` reads from its YAML file."""
+
+    train: TrainConfig = field(default_factory=TrainConfig)
+    gym: GymConfig = field(default_factory=_ppo_gym)
+    network: NetworkConfig = field(default_factory=NetworkConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    normalizer: NormalizerConfig = field(default_factory=NormalizerConfig)
+    motion_weights: MotionWeightConfig = field(default_factory=MotionWeightConfig)
+
+    def __post_init__(self) -> None:
+        if self.batch_size % self.ppo.minibatch_size != 0:
+            raise ValueError(
+                f"ppo.minibatch_size ({self.ppo.minibatch_size}) must divide the rollout of "
+                f"ppo.rollout_length x gym.num_envs = {self.ppo.rollout_length} x {self.gym.num_envs} = "
+                f"{self.batch_size} samples"
+            )
+
+    @property
+    def batch_size(self) -> int:
+        """Samples per rollout (rollout_length x num_envs)."""
+        return self.ppo.rollout_length * self.gym.num_envs
+
+    @property
+    def num_minibatches(self) -> int:
+        return self.batch_size // self.ppo.minibatch_size

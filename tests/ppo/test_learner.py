@@ -1,0 +1,67 @@
+"""The PPO learner on the debug config: what a rollout stores, the bootstrap of truncated episodes, the policy."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from common.config import load_config
+from common.humanoid import Humanoid
+from common.motion_dataset import load_motions
+from ppo.config import PPOTrackerConfig
+from ppo.learner import PPOLearner
+from ppo.observation import observe
+
+DEBUG = Path(__file__).resolve().parents[2] / "configs" / "ppo" / "debug.yaml"
+
+
+@pytest.fixture(scope="module")
+def learner() -> Iterator[PPOLearner]:
+    # Episodes of at most 5 steps so that a rollout of 8 steps holds truncated episodes.
+    cfg = load_config(PPOTrackerConfig, DEBUG, ["gym.termination.max_episode_frames=5"])
+    humanoid = Humanoid(cfg.gym.physics)
+    torch.manual_seed(0)
+    out = PPOLearner(cfg, load_motions(["walk"], humanoid), humanoid, np.random.default_rng(0))
+    yield out
+    out.close()
+
+
+def test_zero_action_follows_the_reference(learner: PPOLearner) -> None:
+    reference = learner.gym.reference_targets()
+    np.testing.assert_array_equal(learner._pd_targets(reference, np.zeros_like(reference)), reference)
+    # action_scale 0.5 rad per unit, clipped at 4 units
+    np.testing.assert_allclose(learner._pd_targets(reference, np.full_like(reference, 9.0)) - reference, 2.0)
+
+
+def test_rollout_rows_and_truncated_bootstrap(learner: PPOLearner) -> None:
+    first_ids = learner.result.episode_id.copy()
+    assert learner.collect() == 8 * 8
+    data = learner.buffer.latest(8)
+    assert data["obs"].shape == (8, 8, learner.obs_size) and data["action"].shape == (8, 8, 28)
+    np.testing.assert_array_equal(data["episode_id"][0], first_ids)  # row t: the episode the step started in
+    truncated = data["truncated"]
+    assert truncated.any(), "episodes of 5 steps must be truncated within 8 steps"
+    assert np.all(data["bootstrap_value"][truncated] != 0.0) and np.all(data["bootstrap_value"][~truncated] == 0.0)
+    # The stored log-probabilities are those of the stored actions under the policy that acted.
+    with torch.no_grad():
+        log_prob, _, _ = learner.net.evaluate(torch.as_tensor(data["obs"][-1]), torch.as_tensor(data["action"][-1]))
+    np.testing.assert_allclose(log_prob.numpy(), data["log_prob"][-1], rtol=1e-5)
+    np.testing.assert_allclose(learner.gym.clip_weights, learner.motion_weights.weights())
+
+
+def test_deterministic_policy_is_a_frozen_snapshot(learner: PPOLearner) -> None:
+    policy = learner.policy()
+    result = learner.result
+    targets = policy(result)
+    count = learner.normalizer.count
+    learner.collect()  # more statistics and a new state do not change the snapshot
+    assert learner.normalizer.count == count + 64
+    np.testing.assert_array_equal(policy(result), targets)
+    # Near the reference: the last layer starts small, so the mean offset is tiny.
+    reference = result.ref_next.qpos[:, learner.hinge_qpos]
+    assert np.abs(targets - reference).max() < 0.05
+    assert observe(result.sim, result.ref_next, result.phase).shape == (8, learner.obs_size)
