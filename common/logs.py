@@ -223,7 +223,7 @@ class Progress:
     every ``plain_every`` iterations and at :meth:`close` instead.
 
     Args:
-        total: Number of iterations of the run.
+        total: Number of iterations of the run; None when the budget is not in iterations (wall-clock, samples).
         desc: Label in front of the bar.
         initial: Iterations already done (resume).
         initial_samples: Samples already collected (resume); excluded from the samples/s rate.
@@ -235,7 +235,7 @@ class Progress:
 
     def __init__(
         self,
-        total: int,
+        total: int | None,
         desc: str,
         *,
         initial: int = 0,

@@ -15,7 +15,7 @@ import copy
 import sys
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime
 from typing import Any, Protocol
 
@@ -24,6 +24,7 @@ import torch
 
 from common.config import ConfigError, load_config, to_dict
 from common.evaluate import EvalConfig, EvalResult, Policy, evaluate
+from common.gym import GymConfig
 from common.humanoid import Humanoid
 from common.logs import MetricsLogger, Progress, Timers
 from common.motion import MotionFormatError
@@ -38,7 +39,7 @@ class TrainConfig:
 
     Attributes:
         motions: Motion specs (bundled clip names, ``all``, files, folders, a dataset ``.h5``).
-        seed: Seed of python, numpy and torch RNGs and of the gym.
+        seed: Seed of python, numpy and torch RNGs; the gym's seed is this plus ``gym.seed`` (see :func:`gym_config`).
         device: ``cpu`` or ``cuda`` (``cuda:1``, ...) for the networks; the physics always runs on the CPU.
         torch_threads: CPU threads torch may use (the physics uses the gym's own threads).
         max_minutes: Stop after this much training wall-clock time (evaluation time excluded); None: no limit.
@@ -92,6 +93,11 @@ class Learner(Protocol):
         """Networks, optimisers, normalisers, gym and buffer state: all needed to continue exactly."""
 
     def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+
+def gym_config(cfg: Any) -> GymConfig:
+    """The gym section of a learner's config with its seed offset by ``train.seed`` (one seed drives a run)."""
+    return replace(cfg.gym, seed=cfg.train.seed + cfg.gym.seed)
 
 
 def add_common_arguments(parser: argparse.ArgumentParser, default_config: str) -> None:
@@ -206,6 +212,7 @@ class Trainer:
         next_eval = self._next(t.eval_every_minutes, t.eval_every_iterations)
         next_ckpt = self.train_seconds + 60.0 * t.checkpoint_every_minutes
         pending: dict[str, list[float]] = {}
+        evaluated_at = -1
         try:
             while not self._budget_spent() and not (stop is not None and stop()):
                 start = time.perf_counter()
@@ -225,6 +232,7 @@ class Trainer:
                     pending.clear()
                 if self._due(next_eval):
                     metrics.update(self._evaluate())
+                    evaluated_at = self.iteration
                     next_eval = self._next(t.eval_every_minutes, t.eval_every_iterations)
                 if metrics:
                     logger.log(self.iteration, metrics, self.samples, self.train_seconds)
@@ -232,8 +240,8 @@ class Trainer:
                 if self.train_seconds >= next_ckpt:
                     self.run_dir.save_checkpoint(self._state(), self.iteration)
                     next_ckpt = self.train_seconds + 60.0 * t.checkpoint_every_minutes
-            final = self._evaluate()
-            logger.log(self.iteration, final, self.samples, self.train_seconds)
+            if evaluated_at != self.iteration:
+                logger.log(self.iteration, self._evaluate(), self.samples, self.train_seconds)
             self.run_dir.save_checkpoint(self._state(), self.iteration)
         finally:
             progress.close()

@@ -13,7 +13,6 @@ normalised observations being exactly those the policy acted on (the ratio start
 from __future__ import annotations
 
 import copy
-import dataclasses
 from typing import Any
 
 import numpy as np
@@ -25,7 +24,7 @@ from common.gym import StepResult, TrackingGym
 from common.humanoid import Humanoid
 from common.motion_library import MotionLibrary
 from common.rewards import REWARD_TERMS
-from common.training import NanGuard
+from common.training import NanGuard, gym_config
 from ppo.config import PPOTrackerConfig
 from ppo.gae import gae
 from ppo.losses import ppo_loss
@@ -51,8 +50,7 @@ class PPOLearner:
                  rng: np.random.Generator) -> None:  # fmt: skip
         self.config, self.library, self.humanoid, self.rng = config, library, humanoid, rng
         self.device = torch.device(config.train.device)
-        # TrainConfig.seed seeds the gym too; gym.seed offsets it.
-        gym_cfg = dataclasses.replace(config.gym, seed=config.train.seed + config.gym.seed)
+        gym_cfg = gym_config(config)
         self.motion_weights = MotionWeights(library.num_clips, config.motion_weights)
         self.gym = TrackingGym(gym_cfg, library, humanoid, clip_weights=self._clip_weights())
         self.result = self.gym.reset()
