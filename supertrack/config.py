@@ -1,0 +1,228 @@
+"""The ``train-supertrack`` config: frozen dataclasses loaded from ``configs/supertrack/*.yaml``.
+
+Paper values (Fussell et al. 2021, Table 1 and section 5) are the defaults here and in ``paper.yaml``; the CPU
+default and the debug preset shrink networks, batches and the gym.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from common.gym import GymConfig
+from common.training import TrainConfig
+
+
+@dataclass(frozen=True)
+class WorldLossWeights:
+    """Weights of the world model's L1 world-space terms (paper: tuned so that they start about equal).
+
+    Attributes:
+        pos: Per metre of body position error.
+        vel: Per m/s of body linear velocity error.
+        rot: Per radian of body rotation error (components of log(q_pred * inv(q_true))).
+        angvel: Per rad/s of body angular velocity error.
+    """
+
+    pos: float = 20.0
+    vel: float = 1.0
+    rot: float = 5.0
+    angvel: float = 0.25
+
+
+@dataclass(frozen=True)
+class PolicyLossWeights:
+    """Weights of the policy's L1 local-space tracking terms and of the offset regularisers.
+
+    Attributes:
+        pos: Per metre of root-relative body position error.
+        vel: Per m/s of root-frame body velocity error.
+        rot: Per unit of two-axis rotation error.
+        angvel: Per rad/s of root-frame angular velocity error.
+        height: Per metre of body height error.
+        up: Per unit of root-frame up vector error.
+        offset_l1: Weight of mean |o| (o: the network's offsets before noise).
+        offset_l2: Weight of mean o^2.
+    """
+
+    pos: float = 10.0
+    vel: float = 1.0
+    rot: float = 3.0
+    angvel: float = 0.1
+    height: float = 10.0
+    up: float = 3.0
+    offset_l1: float = 0.01
+    offset_l2: float = 0.01
+
+
+@dataclass(frozen=True)
+class WorldModelConfig:
+    """The world model W and its training (Algorithm 1).
+
+    Attributes:
+        hidden: Hidden layer widths (ELU).
+        batch: Windows per step.
+        window: Frames per window (the rollout predicts window - 1 frames from the first).
+        lr: RAdam learning rate.
+        grad_clip: Maximum gradient norm; None disables clipping.
+        init_scale: Scale of the output layer's initial weights (small: W starts at the mean reference acceleration
+            instead of random accelerations of a few normaliser stds).
+        steps_per_iteration: W steps per iteration (the paper: 1).
+        weights: Loss weights.
+    """
+
+    hidden: tuple[int, ...] = (1024, 1024, 1024, 1024, 1024)
+    batch: int = 2048
+    window: int = 8
+    lr: float = 1e-3
+    grad_clip: float | None = 1.0
+    init_scale: float = 0.01
+    steps_per_iteration: int = 1
+    weights: WorldLossWeights = field(default_factory=WorldLossWeights)
+
+    def __post_init__(self) -> None:
+        if self.window < 2 or self.batch < 1 or not self.hidden or self.steps_per_iteration < 1:
+            raise ValueError("world_model needs window >= 2, batch >= 1, steps_per_iteration >= 1 and a hidden layer")
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    """The policy and its training through W (Algorithm 2).
+
+    Attributes:
+        hidden: Hidden layer widths (ELU).
+        batch: Windows per step.
+        window: Frames rolled out through W per window.
+        lr: RAdam learning rate.
+        grad_clip: Maximum gradient norm; None disables clipping.
+        sigma: Exploration noise std added to the offsets o, in the gym and in training.
+        alpha_deg: Offset scale alpha in degrees: target = quat_from_rotvec(alpha * o_hat) * k_next.
+        init_scale: Scale of the output layer's initial weights (small: start near open-loop playback).
+        start_iteration: Iterations of world-model-only training before the first policy step (the paper: 0), so
+            that the policy does not learn from, and exploit, a world model that knows nothing yet.
+        weights: Loss weights.
+    """
+
+    hidden: tuple[int, ...] = (1024, 1024, 1024, 1024, 1024)
+    batch: int = 1024
+    window: int = 32
+    lr: float = 1e-4
+    grad_clip: float | None = 1.0
+    sigma: float = 0.1
+    alpha_deg: float = 120.0
+    init_scale: float = 0.01
+    start_iteration: int = 0
+    weights: PolicyLossWeights = field(default_factory=PolicyLossWeights)
+
+    def __post_init__(self) -> None:
+        if self.window < 1 or self.batch < 1 or not self.hidden:
+            raise ValueError("policy needs window >= 1, batch >= 1 and at least one hidden layer")
+        if self.sigma < 0 or self.alpha_deg <= 0:
+            raise ValueError("policy.sigma must be >= 0 and policy.alpha_deg > 0")
+
+    @property
+    def alpha(self) -> float:
+        """Offset scale in radians."""
+        return math.radians(self.alpha_deg)
+
+
+@dataclass(frozen=True)
+class BufferConfig:
+    """Replay storage.
+
+    Attributes:
+        capacity: Frames kept for training (paper: about 150k).
+        val_envs: Characters whose frames go to a small held-back buffer for world-model diagnostics only.
+        val_capacity: Frames of the held-back buffer.
+        normalizer_min_std: Floor of every feature's std in the normalisers (units of the feature).
+    """
+
+    capacity: int = 150_000
+    val_envs: int = 8
+    val_capacity: int = 16_384
+    normalizer_min_std: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.val_envs < 1:
+            raise ValueError("buffer.val_envs must be >= 1 (the diagnostics need held-back frames)")
+
+
+@dataclass(frozen=True)
+class CollectConfig:
+    """How the gym feeds the buffer.
+
+    Attributes:
+        steps_per_iteration: Gym control steps of all characters per training iteration.
+        warmup_steps: Gym control steps before the first update (at least both windows).
+    """
+
+    steps_per_iteration: int = 1
+    warmup_steps: int = 64
+
+    def __post_init__(self) -> None:
+        if self.steps_per_iteration < 1 or self.warmup_steps < 0:
+            raise ValueError("collect.steps_per_iteration must be >= 1 and warmup_steps >= 0")
+
+
+@dataclass(frozen=True)
+class DiagnosticsConfig:
+    """Open-loop world-model error against the simulator, logged with every evaluation.
+
+    Attributes:
+        horizons: Frames predicted from a recorded state with the recorded targets.
+        batch: Held-back windows measured.
+        seed: Seed of the window draw (its own generator, so diagnostics never move the training RNG).
+    """
+
+    horizons: tuple[int, ...] = (1, 8, 32)
+    batch: int = 256
+    seed: int = 12345
+
+    def __post_init__(self) -> None:
+        if not self.horizons or min(self.horizons) < 1:
+            raise ValueError("diagnostics.horizons must be positive frame counts")
+
+
+@dataclass(frozen=True)
+class SuperTrackConfig:
+    """Everything ``train-supertrack`` reads.
+
+    Attributes:
+        train: Run length, seed, device, logging, evaluation.
+        gym: The characters in the simulator (the gym's seed is offset by train.seed).
+        world_model: W.
+        policy: The policy.
+        buffer: Replay storage.
+        collect: Gym steps per iteration.
+        diagnostics: World-model error measurement.
+    """
+
+    train: TrainConfig = field(default_factory=TrainConfig)
+    gym: GymConfig = field(default_factory=lambda: GymConfig(num_envs=256))
+    world_model: WorldModelConfig = field(default_factory=WorldModelConfig)
+    policy: PolicyConfig = field(default_factory=PolicyConfig)
+    buffer: BufferConfig = field(default_factory=BufferConfig)
+    collect: CollectConfig = field(default_factory=CollectConfig)
+    diagnostics: DiagnosticsConfig = field(default_factory=DiagnosticsConfig)
+
+    def __post_init__(self) -> None:
+        train_envs = self.gym.num_envs - self.buffer.val_envs
+        if train_envs < 1:
+            raise ValueError(f"gym.num_envs ({self.gym.num_envs}) must exceed buffer.val_envs ({self.buffer.val_envs})")
+        longest = max(self.world_model.window, self.policy.window)
+        if self.buffer.capacity // train_envs < 2 * longest:
+            raise ValueError(
+                f"buffer.capacity ({self.buffer.capacity} frames) holds {self.buffer.capacity // train_envs} steps of "
+                f"{train_envs} training characters: fewer than twice the longest window ({longest})"
+            )
+        if self.buffer.val_capacity // self.buffer.val_envs <= max(self.diagnostics.horizons):
+            raise ValueError(
+                "buffer.val_capacity must hold more steps per held-back character than the longest horizon"
+            )
+        if self.collect.warmup_steps < longest:
+            raise ValueError(f"collect.warmup_steps must be >= the longest window ({longest})")
+
+    @property
+    def train_envs(self) -> int:
+        """Characters whose frames train the networks."""
+        return self.gym.num_envs - self.buffer.val_envs

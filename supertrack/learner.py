@@ -1,0 +1,253 @@
+"""The SuperTrack learner (Fussell et al. 2021): gym -> cyclic buffer -> one W step and one policy step.
+
+Implements :class:`common.training.Learner`; :class:`common.training.Trainer` drives it. Each iteration the gym's
+characters act with the current policy plus noise in the real simulator and their frames go into the buffer; then
+W takes one step on 8-frame windows (Algorithm 1) and the policy one step on 32-frame windows rolled out through W
+(Algorithm 2).
+
+Buffer frame i of a character holds S_i (``sim``), K_{i+1} (``kin_next``: the reference the step aims for, which
+is also the reference at the time of S_{i+1}), k_{i+1} (``kin_next_joint_rot``) and the applied targets T_i
+(``target_rot``). So a window's kin_next[i] is the target of the policy's i-th step and the state its prediction
+P_{i+1} is compared with, and target_rot[i] leads from sim[i] to sim[i + 1].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Any
+
+import numpy as np
+import torch
+
+from common.buffer import CyclicBuffer
+from common.evaluate import Policy as EvalPolicy
+from common.gym import StepResult, TrackingGym
+from common.humanoid import Humanoid
+from common.motion_library import MotionLibrary
+from common.training import NanGuard
+from supertrack.actor import Actor
+from supertrack.config import SuperTrackConfig
+from supertrack.diagnostics import open_loop_errors
+from supertrack.losses import policy_loss, world_model_loss
+from supertrack.models import Policy, WorldModel
+from supertrack.normalizer import (
+    acceleration_normalizer,
+    local_normalizer,
+    target_normalizer,
+)
+from supertrack.rollout import policy_rollout, world_model_rollout
+from supertrack.state import STATE_WIDTH, BodyState, pack_character_state
+
+# Floor of the acceleration normaliser's std (m/s^2, rad/s^2): reference clips hold some bodies nearly still.
+ACCEL_MIN_STD = 1.0
+
+
+def buffer_fields(num_bodies: int, num_joints: int) -> dict[str, tuple[tuple[int, ...], str]]:
+    """The buffer's per-frame fields (see the module docstring)."""
+    return {
+        "sim": ((num_bodies, STATE_WIDTH), "float32"),
+        "kin_next": ((num_bodies, STATE_WIDTH), "float32"),
+        "kin_next_joint_rot": ((num_joints, 4), "float32"),
+        "target_rot": ((num_joints, 4), "float32"),
+    }
+
+
+def buffer_state(buffer: CyclicBuffer) -> dict[str, Any]:
+    """The stored frames of a buffer, oldest first (every field, bookkeeping included)."""
+    return {"total_pushed": buffer.total_pushed, "rows": buffer.latest(buffer.size)}
+
+
+def load_buffer_state(buffer: CyclicBuffer, state: dict[str, Any]) -> None:
+    """Refills ``buffer`` with :func:`buffer_state` output; windows are then sampled exactly as before."""
+    rows = state["rows"]
+    buffer.clear()
+    for t in range(len(rows["episode_id"])):
+        buffer.push(**{name: rows[name][t] for name in buffer.fields})
+    buffer.total_pushed = int(state["total_pushed"])
+
+
+class SuperTrackLearner:
+    """World model, policy, their optimisers, the gym and the buffers.
+
+    Args:
+        cfg: The config.
+        humanoid: The model.
+        library: The motions to track (normaliser statistics and the gym's references).
+        rng: The learner's generator (exploration noise in the gym, window draws); the Trainer saves it.
+    """
+
+    def __init__(self, cfg: SuperTrackConfig, humanoid: Humanoid, library: MotionLibrary,
+                 rng: np.random.Generator) -> None:  # fmt: skip
+        self.cfg, self.humanoid, self.rng = cfg, humanoid, rng
+        self.device = torch.device(cfg.train.device)
+        n_bodies, n_joints = humanoid.num_bodies, len(humanoid.joint_groups)
+        min_std = cfg.buffer.normalizer_min_std
+        local_norm = local_normalizer(library, min_std)
+        revolute = torch.tensor([g.kind == "revolute" for g in humanoid.joint_groups])
+        self.world_model = WorldModel(
+            n_bodies, revolute, cfg.world_model.hidden, local_norm, target_normalizer(library, humanoid, min_std),
+            acceleration_normalizer(library, ACCEL_MIN_STD), humanoid.physics.control_dt, cfg.world_model.init_scale,
+        ).to(self.device)  # fmt: skip
+        self.policy_net = Policy(n_joints, cfg.policy.hidden, local_norm, cfg.policy.init_scale).to(self.device)
+        self.world_optimizer = torch.optim.RAdam(self.world_model.parameters(), lr=cfg.world_model.lr)
+        self.policy_optimizer = torch.optim.RAdam(self.policy_net.parameters(), lr=cfg.policy.lr)
+        self._new_guards()
+        # train.seed offsets the gym's own seed so that --seed changes its draws too.
+        self.gym = TrackingGym(dataclasses.replace(cfg.gym, seed=cfg.gym.seed + cfg.train.seed), library, humanoid)
+        self._res: StepResult = self.gym.reset()
+        fields = buffer_fields(n_bodies, n_joints)
+        self.train_buffer = CyclicBuffer(cfg.buffer.capacity, cfg.train_envs, fields)
+        self.val_buffer = CyclicBuffer(cfg.buffer.val_capacity, cfg.buffer.val_envs, fields)
+        self.actor = Actor(humanoid, self.policy_net, cfg.policy.alpha)
+        self._charts: dict[str, float] = {}
+        self.updates = 0
+
+    def _new_guards(self) -> None:
+        # Rebuilt after loading a checkpoint so that a restore never goes back to the freshly initialised weights.
+        self.world_guard = NanGuard({"world_model": self.world_model, "optimizer": self.world_optimizer})
+        self.policy_guard = NanGuard({"policy": self.policy_net, "optimizer": self.policy_optimizer})
+
+    # Learner protocol ------------------------------------------------------------------------------------------
+
+    def collect(self) -> int:
+        """Steps every character with the noisy policy and stores the frames. Returns the samples added."""
+        c = self.cfg.collect
+        steps = max(c.steps_per_iteration, c.warmup_steps - self.train_buffer.total_pushed)
+        n, n_train = self.gym.num_envs, self.cfg.train_envs
+        n_joints = len(self.humanoid.joint_groups)
+        charts = self._charts
+        for _ in range(steps):
+            prev = self._res
+            noise = self.cfg.policy.sigma * self.rng.standard_normal((n, n_joints, 3))
+            action = self.actor(prev, noise)
+            res = self.gym.step(action.hinge_targets)
+            frame = {
+                "sim": pack_character_state(prev.sim), "kin_next": pack_character_state(prev.ref_next),
+                "kin_next_joint_rot": action.kin_next_joint_rot, "target_rot": action.target_rot,
+                "episode_id": prev.episode_id, "terminated": res.terminated, "truncated": res.truncated,
+            }  # fmt: skip
+            self.train_buffer.push(**{k: v[:n_train] for k, v in frame.items()})
+            self.val_buffer.push(**{k: v[n_train:] for k, v in frame.items()})
+            done = res.terminated | res.truncated
+            charts["reward_sum"] = charts.get("reward_sum", 0.0) + float(res.reward.sum())
+            charts["steps"] = charts.get("steps", 0.0) + n
+            charts["episodes"] = charts.get("episodes", 0.0) + float(done.sum())
+            charts["episode_frames"] = charts.get("episode_frames", 0.0) + float((prev.episode_frame[done] + 1).sum())
+            charts["terminated"] = charts.get("terminated", 0.0) + float(res.terminated.sum())
+            self._res = res
+        return steps * n
+
+    def update(self) -> dict[str, float]:
+        """World-model step(s) then one policy step (the policy trains through the just-updated W)."""
+        start = time.perf_counter()
+        for _ in range(self.cfg.world_model.steps_per_iteration):
+            metrics = self._world_model_step()
+        middle = time.perf_counter()
+        if self.updates >= self.cfg.policy.start_iteration:
+            metrics.update(self._policy_step())
+        self.updates += 1
+        metrics["perf/world_model_step_s"] = middle - start
+        metrics["perf/policy_step_s"] = time.perf_counter() - middle
+        metrics.update(self._pop_charts())
+        return metrics
+
+    def policy(self) -> EvalPolicy:
+        return self.actor.deterministic
+
+    def diagnostics(self) -> dict[str, float]:
+        d = self.cfg.diagnostics
+        # Fresh generators with a fixed seed: the same windows every time, and the training RNG is not touched.
+        out = open_loop_errors(self.world_model, self.val_buffer, d.horizons, d.batch, np.random.default_rng(d.seed),
+                               prefix="world_model/val_")  # fmt: skip
+        out.update(open_loop_errors(self.world_model, self.train_buffer, d.horizons, d.batch,
+                                    np.random.default_rng(d.seed), prefix="world_model/train_"))  # fmt: skip
+        return out
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "world_model": self.world_model.state_dict(), "policy": self.policy_net.state_dict(),
+            "world_optimizer": self.world_optimizer.state_dict(),
+            "policy_optimizer": self.policy_optimizer.state_dict(), "gym": self.gym.state_dict(),
+            "train_buffer": buffer_state(self.train_buffer), "val_buffer": buffer_state(self.val_buffer),
+            "updates": self.updates,
+        }  # fmt: skip
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.world_model.load_state_dict(state["world_model"])
+        self.policy_net.load_state_dict(state["policy"])
+        self.world_optimizer.load_state_dict(state["world_optimizer"])
+        self.policy_optimizer.load_state_dict(state["policy_optimizer"])
+        self._res = self.gym.load_state_dict(state["gym"])
+        load_buffer_state(self.train_buffer, state["train_buffer"])
+        load_buffer_state(self.val_buffer, state["val_buffer"])
+        self.updates = int(state["updates"])
+        self._new_guards()
+
+    def close(self) -> None:
+        self.gym.close()
+
+    # Training steps -----------------------------------------------------------------------------------------
+
+    def _tensor(self, x: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(x, device=self.device)
+
+    def _world_model_step(self) -> dict[str, float]:
+        c = self.cfg.world_model
+        windows = self.train_buffer.sample_windows(c.batch, c.window, self.rng)
+        sim = BodyState.unpack(self._tensor(windows["sim"]))
+        predicted = world_model_rollout(self.world_model, sim, self._tensor(windows["target_rot"]))
+        loss, metrics = world_model_loss(predicted, sim.map(lambda x: x[:, 1:]), c.weights)
+        stats = _batch_stats(windows["sim"])
+        return self._optimize("world_model", loss, metrics, self.world_model, self.world_optimizer,
+                              self.world_guard, c.grad_clip, stats)  # fmt: skip
+
+    def _policy_step(self) -> dict[str, float]:
+        c = self.cfg.policy
+        windows = self.train_buffer.sample_windows(c.batch, c.window, self.rng)
+        sim0 = BodyState.unpack(self._tensor(windows["sim"][:, 0]))
+        kin_next = BodyState.unpack(self._tensor(windows["kin_next"]))
+        kin_rot = self._tensor(windows["kin_next_joint_rot"])
+        noise = c.sigma * torch.randn(kin_rot.shape[:-1] + (3,), device=self.device)
+        rollout = policy_rollout(self.policy_net, self.world_model, sim0, kin_next, kin_rot, noise, c.alpha)
+        loss, metrics = policy_loss(rollout.predicted, kin_next, rollout.offsets, c.weights)
+        stats = _batch_stats(windows["sim"][:, 0])
+        return self._optimize("policy", loss, metrics, self.policy_net, self.policy_optimizer,
+                              self.policy_guard, c.grad_clip, stats)  # fmt: skip
+
+    def _optimize(self, name: str, loss: torch.Tensor, metrics: dict[str, torch.Tensor], module: torch.nn.Module,
+                  optimizer: torch.optim.Optimizer, guard: NanGuard, grad_clip: float | None,
+                  stats: dict[str, float]) -> dict[str, float]:  # fmt: skip
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(module.parameters(), math.inf if grad_clip is None else grad_clip)
+        # A finite loss can still give non-finite gradients (e.g. through a degenerate rotation): check both.
+        if guard.check({name: loss, f"{name}_grad_norm": grad_norm}, stats):
+            optimizer.step()
+        metrics[f"losses/{name}_grad_norm"] = grad_norm.detach()
+        values = torch.stack(list(metrics.values())).cpu().tolist()
+        return dict(zip(metrics.keys(), values, strict=True))
+
+    def _pop_charts(self) -> dict[str, float]:
+        c, self._charts = self._charts, {}
+        if not c:
+            return {}
+        out = {"charts/reward": c["reward_sum"] / c["steps"], "charts/buffer_frames": float(len(self.train_buffer))}
+        if c["episodes"]:
+            # Episodes that ended since the last update: length in frames, and the share that failed (not truncated).
+            out["charts/episode_length"] = c["episode_frames"] / c["episodes"]
+            out["charts/terminated_share"] = c["terminated"] / c["episodes"]
+        return out
+
+
+def _batch_stats(packed_sim: np.ndarray) -> dict[str, float]:
+    """What the NaN guard reports about a batch of packed states (..., N, 13)."""
+    s = BodyState.unpack(torch.as_tensor(packed_sim))
+    return {
+        "max_abs_pos": float(s.pos.abs().max()),
+        "min_height": float(s.pos[..., 2].min()),
+        "max_speed": float(s.vel.norm(dim=-1).max()),
+        "max_angular_speed": float(s.angvel.norm(dim=-1).max()),
+        "max_quat_norm_error": float((s.rot.norm(dim=-1) - 1.0).abs().max()),
+    }

@@ -1,0 +1,70 @@
+"""SuperTrack's losses as pure functions returning ``(loss, metrics)`` (Fussell et al. 2021, section 4).
+
+Every term is a mean absolute error (L1) over batch, time, bodies and components, so weights do not depend on
+batch or window sizes. Metrics hold the unweighted terms, keyed for the metrics log (``losses/...``).
+"""
+
+from __future__ import annotations
+
+from torch import Tensor
+
+from common import torch_rotations as R
+from common.features import local_features
+from supertrack.config import PolicyLossWeights, WorldLossWeights
+from supertrack.state import BodyState
+
+POLICY_TERMS = ("pos", "vel", "rot", "angvel", "height", "up")
+
+
+def rotation_error(q_pred: Tensor, q_true: Tensor) -> Tensor:
+    """log(q_pred * inv(q_true)) as a rotation vector (shortest path, sign-invariant). (..., 4) -> (..., 3)."""
+    return R.quat_to_rotvec(R.quat_mul(q_pred, R.quat_conj(q_true)))
+
+
+def world_model_loss(
+    predicted: BodyState, true: BodyState, weights: WorldLossWeights
+) -> tuple[Tensor, dict[str, Tensor]]:
+    """L1 world-space loss of a W rollout against the simulator.
+
+    Args:
+        predicted: P_1 .. P_{L-1}, fields (B, T, N, k).
+        true: S_1 .. S_{L-1}, same shapes.
+        weights: Term weights.
+
+    Returns:
+        Scalar loss and detached unweighted terms ``losses/world_model_<term>`` plus ``losses/world_model``.
+    """
+    terms = {
+        "pos": (predicted.pos - true.pos).abs().mean(),
+        "vel": (predicted.vel - true.vel).abs().mean(),
+        "rot": rotation_error(predicted.rot, true.rot).abs().mean(),
+        "angvel": (predicted.angvel - true.angvel).abs().mean(),
+    }
+    loss = sum(getattr(weights, k) * v for k, v in terms.items())
+    metrics = {f"losses/world_model_{k}": v.detach() for k, v in terms.items()}
+    metrics["losses/world_model"] = loss.detach()
+    return loss, metrics
+
+
+def policy_loss(predicted: BodyState, kin: BodyState, offsets: Tensor,
+                weights: PolicyLossWeights) -> tuple[Tensor, dict[str, Tensor]]:  # fmt: skip
+    """L1 local-space tracking loss of a policy rollout plus the offset regularisers.
+
+    Args:
+        predicted: P_1 .. P_L, fields (B, T, N, k).
+        kin: K_1 .. K_L, same shapes.
+        offsets: Offsets o before noise. Shape: (B, T, J, 3).
+        weights: Term weights.
+
+    Returns:
+        Scalar loss and detached unweighted terms ``losses/policy_<term>`` plus ``losses/policy``.
+    """
+    sim_local = local_features(predicted.pos, predicted.rot, predicted.vel, predicted.angvel)
+    kin_local = local_features(kin.pos, kin.rot, kin.vel, kin.angvel)
+    terms = {k: (sim_local[k] - kin_local[k]).abs().mean() for k in POLICY_TERMS}
+    terms["offset_l1"] = offsets.abs().mean()
+    terms["offset_l2"] = offsets.square().mean()
+    loss = sum(getattr(weights, k) * v for k, v in terms.items())
+    metrics = {f"losses/policy_{k}": v.detach() for k, v in terms.items()}
+    metrics["losses/policy"] = loss.detach()
+    return loss, metrics

@@ -1,0 +1,99 @@
+"""Differentiable rollouts through the world model (Algorithms 1 and 2 of Fussell et al. 2021).
+
+Both start from a recorded simulated state and never write into their inputs; gradients flow through every
+predicted frame (back-propagation through time over the window).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from supertrack.models import Policy, WorldModel
+from supertrack.state import BodyState, target_rotations
+
+
+@contextlib.contextmanager
+def frozen(module: nn.Module) -> Iterator[None]:
+    """Parameters of ``module`` get no gradient inside the block (activations still pass gradients through)."""
+    flags = [p.requires_grad for p in module.parameters()]
+    for p in module.parameters():
+        p.requires_grad_(False)
+    try:
+        yield
+    finally:
+        for p, flag in zip(module.parameters(), flags, strict=True):
+            p.requires_grad_(flag)
+
+
+def world_model_rollout(world_model: WorldModel, sim: BodyState, target_rot: Tensor) -> BodyState:
+    """Open-loop prediction from the first recorded frame with the recorded PD targets (Algorithm 1).
+
+    P_0 = S_0; P_{i+1} = W(P_i, T_i) for i = 0 .. L - 2.
+
+    Args:
+        world_model: W.
+        sim: Recorded simulated states S_0 .. S_{L-1} (only S_0 is read), fields (B, L, N, k).
+        target_rot: Recorded PD target rotations T_0 .. T_{L-1} (the last is unused). Shape: (B, L, J, 4).
+
+    Returns:
+        Predicted P_1 .. P_{L-1}, fields (B, L - 1, N, k).
+    """
+    length = target_rot.shape[1]
+    state = sim.time(0)
+    predicted = []
+    for i in range(length - 1):
+        state = world_model(state, target_rot[:, i])
+        predicted.append(state)
+    return BodyState.stack(predicted)
+
+
+@dataclass
+class PolicyRollout:
+    """What :func:`policy_rollout` produced.
+
+    Attributes:
+        predicted: P_1 .. P_L, fields (B, L, N, k).
+        offsets: Offsets o before noise. Shape: (B, L, J, 3).
+    """
+
+    predicted: BodyState
+    offsets: Tensor
+
+
+def policy_rollout(policy: Policy, world_model: WorldModel, sim0: BodyState, kin_next: BodyState,
+                   kin_next_joint_rot: Tensor, noise: Tensor, alpha: float) -> PolicyRollout:  # fmt: skip
+    """The policy drives W from a recorded state along the recorded reference (Algorithm 2).
+
+    For i = 0 .. L - 1: o_i = Pi(P_i, K_{i+1}); T_i = quat_from_rotvec(alpha (o_i + noise_i)) * k_{i+1};
+    P_{i+1} = W(P_i, T_i); P_0 = S_0. W's parameters are frozen here, so the loss trains only the policy.
+
+    Args:
+        policy: The policy.
+        world_model: W.
+        sim0: S_0, fields (B, N, k).
+        kin_next: K_1 .. K_L, fields (B, L, N, k).
+        kin_next_joint_rot: Reference joint rotations k_1 .. k_L. Shape: (B, L, J, 4).
+        noise: Exploration noise already scaled by sigma. Shape: (B, L, J, 3).
+        alpha: Offset scale (rad).
+    """
+    if policy.local_norm is not world_model.local_norm:
+        raise ValueError("the policy and the world model must share one Local() normaliser")
+    length = kin_next_joint_rot.shape[1]
+    kin_features = policy.features(kin_next)
+    state = sim0
+    predicted, offsets = [], []
+    with frozen(world_model):
+        for i in range(length):
+            # Both networks read the same normalised Local(P_i): computed once per step.
+            features = policy.features(state)
+            o = policy.from_features(features, kin_features[:, i])
+            target = target_rotations(o + noise[:, i], kin_next_joint_rot[:, i], alpha)
+            state = world_model.step_from_features(state, features, target)
+            predicted.append(state)
+            offsets.append(o)
+    return PolicyRollout(predicted=BodyState.stack(predicted), offsets=torch.stack(offsets, dim=1))

@@ -1,0 +1,71 @@
+"""Tests of supertrack.losses with hand-computed numbers."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from supertrack.config import PolicyLossWeights, WorldLossWeights
+from supertrack.losses import POLICY_TERMS, policy_loss, rotation_error, world_model_loss
+from supertrack.state import BodyState
+
+
+def _still(batch: int = 1, time: int = 1, bodies: int = 2) -> BodyState:
+    """Upright bodies at rest, 1 m apart on x, at 1 m height."""
+    pos = torch.zeros(batch, time, bodies, 3, dtype=torch.float64)
+    pos[..., 0] = torch.arange(bodies, dtype=torch.float64)
+    pos[..., 2] = 1.0
+    rot = torch.zeros(batch, time, bodies, 4, dtype=torch.float64)
+    rot[..., 0] = 1.0
+    zeros = torch.zeros(batch, time, bodies, 3, dtype=torch.float64)
+    return BodyState(pos=pos, rot=rot, vel=zeros, angvel=zeros.clone())
+
+
+def test_rotation_error_is_the_log_and_sign_invariant() -> None:
+    a = torch.tensor([math.cos(0.15), 0.0, 0.0, math.sin(0.15)], dtype=torch.float64)
+    one = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64)
+    torch.testing.assert_close(rotation_error(a, one), torch.tensor([0.0, 0.0, 0.3], dtype=torch.float64))
+    torch.testing.assert_close(rotation_error(-a, one), torch.tensor([0.0, 0.0, 0.3], dtype=torch.float64))
+    torch.testing.assert_close(rotation_error(a, a), torch.zeros(3, dtype=torch.float64))
+
+
+def test_world_model_loss_by_hand() -> None:
+    true = _still()
+    pred = _still()
+    pred.pos = pred.pos.clone()
+    pred.pos[0, 0, 1, 2] += 0.6  # one of 6 position components off by 0.6 -> mean 0.1
+    pred.vel = pred.vel + torch.tensor([0.3, 0.0, 0.0], dtype=torch.float64)  # 2 of 6 off by 0.3 -> mean 0.1
+    pred.rot = pred.rot.clone()
+    pred.rot[0, 0, 0] = torch.tensor([math.cos(0.3), math.sin(0.3), 0.0, 0.0])  # 0.6 rad about x -> mean 0.1
+    weights = WorldLossWeights(pos=1.0, vel=2.0, rot=3.0, angvel=4.0)
+    loss, metrics = world_model_loss(pred, true, weights)
+    assert metrics["losses/world_model_pos"].item() == pytest.approx(0.1)
+    assert metrics["losses/world_model_vel"].item() == pytest.approx(0.1)
+    assert metrics["losses/world_model_rot"].item() == pytest.approx(0.1)
+    assert metrics["losses/world_model_angvel"].item() == 0.0
+    assert loss.item() == pytest.approx(0.1 * 1.0 + 0.1 * 2.0 + 0.1 * 3.0)
+    assert metrics["losses/world_model"].item() == pytest.approx(loss.item())
+
+
+def test_policy_loss_is_zero_on_the_reference_and_regularises_offsets() -> None:
+    kin = _still(bodies=3)
+    offsets = torch.zeros(1, 1, 12, 3, dtype=torch.float64)
+    offsets[0, 0, 0] = torch.tensor([0.3, -0.6, 0.0])  # mean |o| = 0.9 / 36 = 0.025, mean o^2 = 0.45 / 36
+    weights = PolicyLossWeights(offset_l1=2.0, offset_l2=4.0)
+    loss, metrics = policy_loss(kin, kin, offsets, weights)
+    for term in POLICY_TERMS:
+        assert metrics[f"losses/policy_{term}"].item() == 0.0
+    assert loss.item() == pytest.approx(2.0 * 0.025 + 4.0 * 0.45 / 36)
+
+
+def test_policy_loss_is_local_a_shift_of_the_whole_character_costs_only_height() -> None:
+    kin = _still(bodies=3)
+    pred = _still(bodies=3)
+    pred.pos = pred.pos + torch.tensor([5.0, -2.0, 0.3], dtype=torch.float64)
+    weights = PolicyLossWeights(offset_l1=0.0, offset_l2=0.0)
+    loss, metrics = policy_loss(pred, kin, torch.zeros(1, 1, 12, 3, dtype=torch.float64), weights)
+    assert metrics["losses/policy_pos"].item() == pytest.approx(0.0, abs=1e-12)
+    assert metrics["losses/policy_height"].item() == pytest.approx(0.3)
+    assert loss.item() == pytest.approx(weights.height * 0.3)

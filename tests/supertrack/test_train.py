@@ -1,0 +1,94 @@
+"""End-to-end tests of ``train-supertrack`` on the debug preset: checkpoint, exact resume, evaluation, bad input."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+from common.logs import read_metrics
+from supertrack.train import build_parser, run
+
+DEBUG = str(Path(__file__).resolve().parents[2] / "configs" / "supertrack" / "debug.yaml")
+COMPARED = ("losses/", "charts/", "eval/", "world_model/")
+
+
+def _train(out: Path, *extra: str) -> None:
+    run(["--config", DEBUG, "--out", str(out), *extra])
+
+
+def _compared(record: dict) -> dict:
+    return {k: v for k, v in record.items() if k.startswith(COMPARED)}
+
+
+def _line(records: list[dict], iteration: int, key: str) -> dict:
+    return next(r for r in records if r["iteration"] == iteration and key in r)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Run a: 6 iterations straight. Run b: 3 iterations, then resumed to 6."""
+    root = tmp_path_factory.mktemp("supertrack")
+    _train(root / "a")
+    _train(root / "b", "--max-iterations", "3")
+    _train(root / "b", "--resume")
+    return {"a": root / "a", "b": root / "b"}
+
+
+def test_debug_run_writes_config_metrics_checkpoint_and_evaluates(runs: dict[str, Path]) -> None:
+    a = runs["a"]
+    assert (a / "config.yaml").is_file() and (a / "checkpoints" / "latest.pt").is_file()
+    records = read_metrics(a / "metrics.jsonl")
+    final = records[-1]
+    assert final["iteration"] == 6
+    assert 0.0 <= final["eval/survival"] <= 1.0 and final["eval/mpjpe_g"] > 0.0
+    for h in (1, 8, 32):
+        assert final[f"world_model/val_pos_err_h{h}"] > 0.0
+    losses = _line(records, 6, "losses/policy")
+    assert math.isfinite(losses["losses/world_model"]) and math.isfinite(losses["losses/policy"])
+    assert losses["perf/samples_per_s"] > 0.0 and "perf/world_model_step_s" in losses
+    state = torch.load(a / "checkpoints" / "latest.pt", weights_only=False)
+    learner = state["learner"]
+    for key in ("world_model", "policy", "world_optimizer", "policy_optimizer", "gym", "train_buffer", "val_buffer"):
+        assert key in learner
+    assert "local_norm.mean" in learner["world_model"] and state["iteration"] == 6
+
+
+def test_same_seed_gives_identical_runs(runs: dict[str, Path]) -> None:
+    a, b = (read_metrics(runs[k] / "metrics.jsonl") for k in ("a", "b"))
+    assert _compared(_line(a, 2, "losses/policy")) == _compared(_line(b, 2, "losses/policy"))
+
+
+def test_resume_continues_exactly(runs: dict[str, Path]) -> None:
+    a, b = (torch.load(runs[k] / "checkpoints" / "latest.pt", weights_only=False) for k in ("a", "b"))
+    assert a["iteration"] == b["iteration"] == 6 and a["samples"] == b["samples"]
+    for net in ("world_model", "policy"):
+        for name, value in a["learner"][net].items():
+            assert torch.equal(value, b["learner"][net][name]), f"{net}.{name} differs after resume"
+    ma, mb = (read_metrics(runs[k] / "metrics.jsonl") for k in ("a", "b"))
+    assert _compared(_line(ma, 6, "losses/policy")) == _compared(_line(mb, 6, "losses/policy"))
+    assert _compared(ma[-1]) == _compared(mb[-1])
+
+
+def test_resume_with_another_config_fails_clearly(runs: dict[str, Path]) -> None:
+    with pytest.raises(SystemExit, match=r"(?s)incompatible.*policy\.lr: saved 0.0001, current 0.5"):
+        _train(runs["b"], "--resume", "--set", "policy.lr=0.5")
+
+
+def test_unknown_config_key_fails_with_its_name(tmp_path: Path) -> None:
+    with pytest.raises(SystemExit, match="unknown key 'policy.lrr'"):
+        _train(tmp_path / "x", "--set", "policy.lrr=1")
+
+
+def test_help_explains_every_option() -> None:
+    text = build_parser().format_help()
+    for option in ("--config", "--motions", "--device", "--out", "--resume", "--max-minutes", "--seed", "--set"):
+        assert option in text
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU")
+def test_debug_run_on_cuda(tmp_path: Path) -> None:
+    _train(tmp_path / "gpu", "--device", "cuda", "--max-iterations", "3")
+    assert (tmp_path / "gpu" / "checkpoints" / "latest.pt").is_file()
