@@ -13,7 +13,6 @@ P_{i+1} is compared with, and target_rot[i] leads from sim[i] to sim[i + 1].
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from typing import Any
@@ -26,7 +25,7 @@ from common.evaluate import Policy as EvalPolicy
 from common.gym import StepResult, TrackingGym
 from common.humanoid import Humanoid
 from common.motion_library import MotionLibrary
-from common.training import NanGuard
+from common.training import NanGuard, gym_config
 from supertrack.actor import Actor
 from supertrack.config import SuperTrackConfig
 from supertrack.diagnostics import open_loop_errors
@@ -94,8 +93,7 @@ class SuperTrackLearner:
         self.world_optimizer = torch.optim.RAdam(self.world_model.parameters(), lr=cfg.world_model.lr)
         self.policy_optimizer = torch.optim.RAdam(self.policy_net.parameters(), lr=cfg.policy.lr)
         self._new_guards()
-        # train.seed offsets the gym's own seed so that --seed changes its draws too.
-        self.gym = TrackingGym(dataclasses.replace(cfg.gym, seed=cfg.gym.seed + cfg.train.seed), library, humanoid)
+        self.gym = TrackingGym(gym_config(cfg), library, humanoid)
         self._res: StepResult = self.gym.reset()
         fields = buffer_fields(n_bodies, n_joints)
         self.train_buffer = CyclicBuffer(cfg.buffer.capacity, cfg.train_envs, fields)
