@@ -299,7 +299,8 @@ class Progress:
     def _print_line(self) -> None:
         elapsed = self._clock() - self._start
         print(
-            f"{self.desc}: {self.iteration}/{self.total} [{elapsed:.0f}s] {self._postfix()}",
+            f"{self.desc}: {self.iteration}{'' if self.total is None else f'/{self.total}'} [{elapsed:.0f}s] "
+            f"{self._postfix()}",
             file=self._stream,
             flush=True,
         )

@@ -200,9 +200,8 @@ class Trainer:
         logger = MetricsLogger(self.run_dir)
         if self.run_dir.resume:
             logger.truncate_after(self.iteration)
-        total = t.max_iterations or 0
         progress = Progress(
-            total,
+            t.max_iterations,
             self.name,
             initial=self.iteration,
             initial_samples=self.samples,
