@@ -1,0 +1,72 @@
+"""Rebuilds the PPO tracker's deterministic policy from a run's checkpoint, for the comparison report.
+
+Acting needs the actor network and the frozen observation normaliser only; the critic, optimiser, clip weights and
+training gym are not rebuilt. The policy is the one :meth:`ppo.learner.PPOLearner.policy` returns: PD targets =
+next reference hinge angles + action_scale * clip(mean action).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from common.config import load_config
+from common.evaluate import Policy
+from common.gym import StepResult
+from common.humanoid import Humanoid
+from common.motion_library import MotionLibrary
+from ppo.config import PPOTrackerConfig
+from ppo.networks import ActorCritic
+from ppo.normalizer import RunningNormalizer
+from ppo.observation import observe
+
+
+def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, library: MotionLibrary) -> Policy:
+    """The deterministic PPO policy stored in ``checkpoint``.
+
+    Args:
+        run_dir: The run directory (its ``config.yaml`` gives the network and normaliser settings).
+        checkpoint: A checkpoint written by the trainer.
+        humanoid: The model.
+        library: The motions to evaluate on (unused: the observation does not depend on the motion set).
+
+    Returns:
+        A callable from the gym's StepResult to hinge PD targets (N, nu).
+
+    Raises:
+        ValueError: If the checkpoint holds no PPO policy or does not fit the config.
+    """
+    del library
+    cfg = load_config(PPOTrackerConfig, Path(run_dir) / "config.yaml")
+    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    try:
+        learner = state["learner"]
+        sizes, norm_state = learner["sizes"], learner["normalizer"]
+    except (KeyError, TypeError) as e:
+        raise ValueError(f"{checkpoint}: no PPO policy in this checkpoint ({e})") from e
+    if sizes["action"] != humanoid.nu:
+        raise ValueError(f"{checkpoint}: {sizes['action']} actions, the model has {humanoid.nu} actuators")
+    n = cfg.normalizer
+    # The mask is stored with the statistics, so the observation layout needs no gym to recompute it.
+    normalizer = RunningNormalizer(np.asarray(norm_state["mask"], dtype=bool), n.clip, n.epsilon, n.max_samples)
+    normalizer.load_state_dict(norm_state)
+    net = ActorCritic(sizes["obs"], sizes["action"], cfg.network)
+    try:
+        net.load_state_dict(learner["net"])
+    except RuntimeError as e:
+        raise ValueError(f"{checkpoint}: network weights do not match {run_dir}/config.yaml: {e}") from e
+    actor = net.actor.eval()
+    hinge_qpos = humanoid.hinge_qpos
+    scale, clip = cfg.network.action_scale, cfg.network.action_clip
+
+    def act(result: StepResult) -> np.ndarray:
+        norm_obs = normalizer.normalize(observe(result.sim, result.ref_next, result.phase))
+        with torch.no_grad():
+            mean = actor(torch.as_tensor(norm_obs)).double().numpy()
+        if clip is not None:
+            mean = np.clip(mean, -clip, clip)
+        return result.ref_next.qpos[:, hinge_qpos] + scale * mean
+
+    return act

@@ -1,0 +1,228 @@
+"""``compare-trackers``: one comparison report of SuperTrack and PPO runs, re-evaluated on one protocol.
+
+Every run's checkpoint is re-evaluated with the shared evaluator (:func:`common.evaluate.evaluate`) on the same
+motions, start frames and seed, rather than trusting the numbers the runs logged; learning curves, thresholds and
+world-model diagnostics come from the runs' ``metrics.jsonl``. Writes ``report.md``, ``report.html`` (self-contained),
+``results.json`` (full-precision numbers) and the PNG figures into ``--out``.
+
+Example::
+
+    compare-trackers runs/st-walk runs/ppo-walk --out reports/walk
+    compare-trackers runs/st-walk runs/ppo-walk --motions walk run --starts 8 --out reports/walk-run
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from common.config import ConfigError
+from common.evaluate import EvalConfig, EvalResult, Policy, evaluate
+from common.humanoid import Humanoid
+from common.motion import MotionFormatError
+from common.motion_dataset import load_motions
+from common.motion_library import MotionLibrary
+from report import figures, render, tables
+from report.html import markdown_to_html
+from report.runs import ReportError, Run, export_module, load_run, unique_labels
+
+
+@dataclass
+class Report:
+    """What :func:`build_report` produced.
+
+    Attributes:
+        runs: The runs, in command-line order.
+        results: Their re-evaluations, same order.
+        protocol: The evaluation protocol used for every run.
+        motions: The motion specs every run was evaluated on.
+        notes: Warnings shown at the top of the report (mixed motion sets, physics, rendering).
+        files: Paths written.
+    """
+
+    runs: list[Run]
+    results: list[EvalResult]
+    protocol: EvalConfig
+    motions: list[str]
+    notes: list[str] = field(default_factory=list)
+    files: dict[str, Path] = field(default_factory=dict)
+
+
+def _union(lists: Sequence[Sequence[str]]) -> list[str]:
+    out: list[str] = []
+    for items in lists:
+        out += [x for x in items if x not in out]
+    return out
+
+
+def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: int | None = None,
+                 motions: Sequence[str] | None = None, starts: int | None = None, max_frames: int | None = None,
+                 render_clips: int = 1, do_render: bool = True) -> Report:  # fmt: skip
+    """Re-evaluates every run and writes the report into ``out``.
+
+    Args:
+        run_dirs: Run directories.
+        out: Report directory (created).
+        checkpoint: Iteration of the checkpoint to evaluate in every run; None: each run's newest.
+        motions: Motion specs to evaluate on; None: the union of the runs' training motions.
+        starts: Start frames per clip; None: the first run's protocol.
+        max_frames: Steps per evaluation episode; None: the first run's protocol.
+        render_clips: Clips per run drawn as filmstrips.
+        do_render: False skips the filmstrips (no GL probing at all).
+
+    Raises:
+        ReportError: On a bad run directory, an unknown learner, or motions that cannot be loaded.
+    """
+    if not run_dirs:
+        raise ReportError("no run directory given")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    runs = [load_run(p, checkpoint) for p in run_dirs]
+    unique_labels(runs)
+    notes: list[str] = []
+    trained_on = {r.label: tuple(r.motions) for r in runs}
+    if len(set(trained_on.values())) > 1:
+        listed = "; ".join(f"{k}: {', '.join(v)}" for k, v in trained_on.items())
+        notes.append(f"The runs were TRAINED on different motion sets ({listed}); all are evaluated on the same set.")
+    specs = list(motions) if motions else _union([r.config.get("train", {}).get("motions", []) for r in runs])
+    physics = runs[0].physics()
+    if any(r.physics() != physics for r in runs[1:]):
+        notes.append(f"The runs used different physics settings; all are evaluated with {runs[0].label}'s.")
+    protocol = runs[0].eval_config()
+    protocol = replace(protocol, starts_per_clip=starts or protocol.starts_per_clip,
+                       max_frames=max_frames or protocol.max_frames)  # fmt: skip
+    if any(r.eval_config() != runs[0].eval_config() for r in runs[1:]):
+        notes.append("The runs logged their training curves with different evaluation protocols; the tables use one.")
+    humanoid = Humanoid(physics)
+    try:
+        library = load_motions(specs, humanoid)
+    except (MotionFormatError, FileNotFoundError, KeyError, ValueError) as e:
+        raise ReportError(f"cannot load motions {specs}: {e}") from e
+    policies, results = [], []
+    for run in runs:
+        policy = export_module(run.learner).load_eval_policy(run.path, run.checkpoint, humanoid, library)
+        policies.append(policy)
+        results.append(evaluate(policy, library, humanoid, protocol))
+    report = Report(runs, results, protocol, specs, notes)
+    report.files["curves"] = figures.learning_curves(runs, out / "learning_curves.png")
+    wm = figures.world_model_curves(runs, out / "world_model.png")
+    if wm is not None:
+        report.files["world_model"] = wm
+    strips = _filmstrips(report, policies, library, humanoid, out, render_clips if do_render else 0)
+    md = _markdown(report, strips)
+    (out / "report.md").write_text(md, encoding="utf-8")
+    (out / "report.html").write_text(markdown_to_html(md, out, "Tracker comparison"), encoding="utf-8")
+    (out / "results.json").write_text(json.dumps(_results_json(report), indent=1) + "\n", encoding="utf-8")
+    report.files.update(markdown=out / "report.md", html=out / "report.html", results=out / "results.json")
+    return report
+
+
+def _filmstrips(report: Report, policies: list[Policy], library: MotionLibrary, humanoid: Humanoid, out: Path,
+                clips: int) -> dict[str, list[tuple[str, Path]]]:  # fmt: skip
+    """{run label: [(clip, png)]}; adds a note saying why nothing was drawn when rendering is off or unavailable."""
+    if clips <= 0:
+        report.notes.append("Filmstrips were not rendered (switched off with --no-render).")
+        return {}
+    backend, why = render.find_backend()
+    if backend is None:
+        report.notes.append(f"Filmstrips were not rendered: {why}.")
+        return {}
+    strips: dict[str, list[tuple[str, Path]]] = {}
+    for run, policy in zip(report.runs, policies, strict=True):
+        for c in range(min(clips, library.num_clips)):
+            name = library.names[c]
+            png = out / f"filmstrip_{run.label.replace(':', '_').replace('#', '_')}_{name}.png"
+            sim, ref = render.record_rollout(policy, library, humanoid, c, report.protocol.max_frames, report.protocol)
+            try:
+                render.filmstrip(sim, ref, humanoid, png, backend)
+            except (RuntimeError, OSError) as e:
+                report.notes.append(f"Filmstrip of {run.label} on {name} failed: {e}")
+                continue
+            strips.setdefault(run.label, []).append((name, png))
+    return strips
+
+
+def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]]) -> str:
+    p = report.protocol
+    labels = [r.label for r in report.runs]
+    lines = ["# Tracker comparison", ""]
+    lines += [f"- **Note:** {n}" for n in report.notes]
+    lines += ["", f"Every run re-evaluated by `common.evaluate` on motions `{', '.join(report.motions)}` "
+              f"(clips: {', '.join(report.results[0].clips)}), {p.starts_per_clip} start(s) per clip, "
+              f"{p.max_frames} frames per episode, seed {p.seed}. Best value of each row in bold.", ""]  # fmt: skip
+    lines += ["## Learning curves (from the training logs)", "", "![learning curves](learning_curves.png)", ""]
+    lines += ["## Tracking metrics (re-evaluated)", "", tables.metric_tables(labels, report.results), ""]
+    spread = tables.spread_table(report.runs, report.results)
+    if spread:
+        lines += ["## Spread over seeds (mean ± std of the overall numbers)", "", spread, ""]
+    lines += ["## Samples and wall-clock to reach thresholds (first logged evaluation)", "",
+              tables.threshold_table(report.runs), ""]  # fmt: skip
+    wm = tables.world_model_table(report.runs)
+    lines += ["## World-model diagnostics (SuperTrack)", ""]
+    if wm:
+        lines += [wm, "", "![world model](world_model.png)", ""]
+    else:
+        lines += ["No run logged world-model diagnostics.", ""]
+    lines += ["## Filmstrips (simulated: opaque; reference: orange ghost)", ""]
+    if not strips:
+        lines += ["Not rendered (see the notes at the top).", ""]
+    for label, items in strips.items():
+        lines += [f"**{label}** on `{clip}`: ![{label} {clip}]({png.name})" for clip, png in items] + [""]
+    lines += ["## Runs: machine, versions, seeds", "", tables.runs_table(report.runs), ""]
+    lines += ["## Configs", "", tables.configs_block(report.runs)]
+    return "\n".join(lines) + "\n"
+
+
+def _results_json(report: Report) -> dict[str, Any]:
+    return {
+        "motions": report.motions, "protocol": {"starts_per_clip": report.protocol.starts_per_clip,
+                                                "max_frames": report.protocol.max_frames, "seed": report.protocol.seed},
+        "notes": report.notes,
+        "runs": [{"label": run.label, "learner": run.learner, "path": str(run.path), "checkpoint": str(run.checkpoint),
+                  "clips": res.clips, "overall": res.overall,
+                  "per_clip": {k: v.tolist() for k, v in res.per_clip.items()}}
+                 for run, res in zip(report.runs, report.results, strict=True)],
+    }  # fmt: skip
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="compare-trackers", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("runs", nargs="+", metavar="RUN_DIR", help="training run directories")
+    parser.add_argument("--out", required=True, help="report directory")
+    parser.add_argument("--checkpoint", type=int, default=None, metavar="ITER",
+                        help="evaluate checkpoint ckpt_<ITER>.pt of every run (default: the newest)")  # fmt: skip
+    parser.add_argument("--motions", nargs="+", default=None,
+                        help="motions to evaluate on (default: the union of the runs' training motions)")  # fmt: skip
+    parser.add_argument("--starts", type=int, default=None, help="start frames per clip (default: first run's)")
+    parser.add_argument("--max-frames", type=int, default=None, help="steps per episode (default: first run's)")
+    parser.add_argument("--render-clips", type=int, default=1, help="clips per run drawn as filmstrips")
+    parser.add_argument("--no-render", action="store_true", help="skip the filmstrips")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
+    torch.set_num_threads(max(1, args.threads))
+    try:
+        report = build_report(args.runs, args.out, args.checkpoint, args.motions, args.starts, args.max_frames,
+                              args.render_clips, not args.no_render)  # fmt: skip
+    except (ReportError, ConfigError) as e:
+        sys.exit(f"error: {e}")
+    for label, result in zip((r.label for r in report.runs), report.results, strict=True):
+        print(f"== {label}\n{result.table()}")
+    for note in report.notes:
+        print(f"note: {note}")
+    print(f"report: {report.files['html']}")
+
+
+if __name__ == "__main__":
+    main()

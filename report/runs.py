@@ -1,0 +1,169 @@
+"""Reading training run directories for the comparison report.
+
+A run directory (written by :mod:`common.training`) holds ``config.yaml``, ``run_info.json``, ``metrics.jsonl`` and
+``checkpoints/``. This module reads them without importing any learner: the learner-specific policy loading lives in
+``<learner>/export.py`` and is reached through :func:`export_module`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+from common.config import ConfigError, from_dict, parse_yaml
+from common.evaluate import EvalConfig
+from common.humanoid import PhysicsConfig
+from common.logs import read_metrics
+
+
+class ReportError(ValueError):
+    """A run directory cannot be used in the report (not a run, unfinished, unreadable)."""
+
+
+@dataclass
+class Run:
+    """One training run as the report sees it.
+
+    Attributes:
+        path: The run directory.
+        label: Unique display name (the learner plus the directory name).
+        learner: Learner name from run_info.json (``supertrack``, ``ppo``): also the package holding ``export.py``.
+        config: The resolved config as a plain mapping.
+        info: run_info.json.
+        metrics: The metrics log, one dict per line.
+        checkpoint: The checkpoint to evaluate.
+        iteration: Iteration stored in that checkpoint.
+        samples: Environment samples at that checkpoint.
+        train_seconds: Training wall-clock at that checkpoint.
+    """
+
+    path: Path
+    label: str
+    learner: str
+    config: dict[str, Any]
+    info: dict[str, Any]
+    metrics: list[dict[str, Any]]
+    checkpoint: Path
+    iteration: int
+    samples: int
+    train_seconds: float
+
+    @property
+    def seed(self) -> int | None:
+        return self.info.get("seed", self.config.get("train", {}).get("seed"))
+
+    @property
+    def motions(self) -> list[str]:
+        """Clip names the run trained on (run_info.json), else the motion specs of its config."""
+        return list(self.info.get("motions") or self.config.get("train", {}).get("motions", []))
+
+    def physics(self) -> PhysicsConfig:
+        """The physics settings the run trained with."""
+        return from_dict(PhysicsConfig, self.config.get("gym", {}).get("physics", {}), source=str(self.path))
+
+    def eval_config(self) -> EvalConfig:
+        """The evaluation protocol of the run's config."""
+        return from_dict(EvalConfig, self.config.get("train", {}).get("eval", {}), source=str(self.path))
+
+    def curve(self, key: str) -> tuple[list[int], list[float], list[float]]:
+        """(samples, wall_clock_s, value) of every log line that holds ``key``."""
+        rows = [m for m in self.metrics if key in m and m[key] is not None]
+        return ([int(m["samples"]) for m in rows], [float(m["wall_clock_s"]) for m in rows],
+                [float(m[key]) for m in rows])  # fmt: skip
+
+
+def _numbered_checkpoints(path: Path) -> dict[int, Path]:
+    """{iteration: file} of the ``ckpt_<iter>.pt`` files (the naming of :class:`common.run.RunDir`)."""
+    found = {}
+    for p in (path / "checkpoints").glob("ckpt_*.pt"):
+        digits = p.stem.removeprefix("ckpt_")
+        if digits.isdigit():
+            found[int(digits)] = p
+    return found
+
+
+def _checkpoint(path: Path, iteration: int | None) -> Path:
+    numbered = _numbered_checkpoints(path)
+    if iteration is None:
+        # The newest numbered file first: a crash between writing it and relinking latest.pt leaves latest behind.
+        if numbered:
+            return numbered[max(numbered)]
+        latest = path / "checkpoints" / "latest.pt"
+        if latest.is_file():
+            return latest
+        raise ReportError(f"{path}: unfinished run: no checkpoint in {path / 'checkpoints'}")
+    if iteration not in numbered:
+        have = ", ".join(str(i) for i in sorted(numbered)) or "none"
+        raise ReportError(f"{path}: no checkpoint of iteration {iteration} (numbered checkpoints: {have})")
+    return numbered[iteration]
+
+
+def load_run(path: str | Path, iteration: int | None = None) -> Run:
+    """Reads a run directory.
+
+    Args:
+        path: The run directory.
+        iteration: Checkpoint iteration to evaluate; None: the newest.
+
+    Raises:
+        ReportError: If ``path`` is not a run directory, has no (such) checkpoint, or its files are unreadable.
+    """
+    import torch  # here, so that reading curves alone stays cheap for callers that never load a checkpoint
+
+    path = Path(path)
+    if not path.is_dir():
+        raise ReportError(f"{path}: not a directory")
+    missing = [n for n in ("config.yaml", "run_info.json") if not (path / n).is_file()]
+    if missing:
+        raise ReportError(f"{path}: not a run directory (missing {', '.join(missing)})")
+    try:
+        config = parse_yaml((path / "config.yaml").read_text(encoding="utf-8")) or {}
+        info = json.loads((path / "run_info.json").read_text(encoding="utf-8"))
+        metrics = read_metrics(path) if (path / "metrics.jsonl").is_file() else []
+    except (OSError, ValueError, ConfigError) as e:
+        raise ReportError(f"{path}: unreadable run files: {e}") from e
+    learner = info.get("learner")
+    if not learner:
+        raise ReportError(f"{path}: run_info.json names no learner")
+    ckpt = _checkpoint(path, iteration)
+    try:
+        state = torch.load(ckpt, map_location="cpu", weights_only=False)
+    except Exception as e:  # noqa: BLE001 - any unpickling failure means the same thing here: a broken file
+        raise ReportError(f"{ckpt}: unreadable checkpoint: {e}") from e
+    meta_learner = state.get("meta", {}).get("learner")
+    if meta_learner not in (None, learner):
+        raise ReportError(f"{ckpt}: checkpoint is from learner {meta_learner!r}, run_info.json says {learner!r}")
+    return Run(
+        path=path, label=f"{learner}:{path.name}", learner=learner, config=dict(config), info=info, metrics=metrics,
+        checkpoint=ckpt, iteration=int(state.get("iteration", 0)), samples=int(state.get("samples", 0)),
+        train_seconds=float(state.get("train_seconds", 0.0)),
+    )  # fmt: skip
+
+
+def export_module(learner: str) -> ModuleType:
+    """The learner's ``export`` module (``<learner>/export.py``), which provides ``load_eval_policy``.
+
+    Raises:
+        ReportError: If the learner has no export module.
+    """
+    try:
+        module = importlib.import_module(f"{learner}.export")
+    except ImportError as e:
+        raise ReportError(f"learner {learner!r} has no export module ({learner}/export.py): {e}") from e
+    if not hasattr(module, "load_eval_policy"):
+        raise ReportError(f"{learner}/export.py defines no load_eval_policy")
+    return module
+
+
+def unique_labels(runs: list[Run]) -> None:
+    """Makes labels unique in place (two runs of the same directory name get a numeric suffix)."""
+    seen: dict[str, int] = {}
+    for run in runs:
+        n = seen.get(run.label, 0)
+        seen[run.label] = n + 1
+        if n:
+            run.label = f"{run.label}#{n + 1}"

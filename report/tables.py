@@ -1,0 +1,142 @@
+"""Markdown tables of the comparison report: per-clip metrics, thresholds, world model, runs."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from common import metrics as M
+from common.evaluate import EvalResult
+from report.figures import world_model_keys
+from report.runs import Run
+
+NUMBER_FORMAT = ".6g"  # enough digits that the tables reproduce the evaluator's numbers to 1e-5 relative
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """A level of a logged eval metric that a method may reach during training.
+
+    Attributes:
+        label: Display name.
+        key: Metrics-log key.
+        reached: Test on the logged value.
+    """
+
+    label: str
+    key: str
+    reached: Callable[[float], bool]
+
+
+THRESHOLDS = (
+    Threshold("survival >= 90 %", "eval/survival", lambda v: v >= 0.9),
+    Threshold("MPJPE-g <= 100 mm", "eval/mpjpe_g", lambda v: v <= 100.0),
+    Threshold("MPJPE-g <= 60 mm", "eval/mpjpe_g", lambda v: v <= 60.0),
+)
+
+
+def fmt(value: float) -> str:
+    return "nan" if not np.isfinite(value) else format(float(value), NUMBER_FORMAT)
+
+
+def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A GitHub-flavoured Markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def _metric_rows(values: dict[str, list[float]]) -> list[list[str]]:
+    """One row per metric; the best value(s) of the row in bold (unmarked when all are equal or NaN)."""
+    rows = []
+    for key in M.METRIC_NAMES:
+        info, row = M.METRICS[key], values[key]
+        best = row[M.best_index(key, row)] if np.isfinite(row).any() else np.nan
+        # Ties are all marked; a row where every method is equal marks none (there is nothing to pick).
+        mark = [v == best for v in row] if not all(v == best for v in row) else [False] * len(row)
+        unit = f" ({info.unit})" if info.unit else ""
+        cells = [f"**{fmt(v)}**" if m else fmt(v) for v, m in zip(row, mark, strict=True)]
+        rows.append([f"{key}{unit}, {'higher' if info.higher_is_better else 'lower'} better", *cells])
+    return rows
+
+
+def metric_tables(labels: list[str], results: list[EvalResult]) -> str:
+    """The overall table then one table per clip: rows are the evaluator's metrics, columns the runs."""
+    parts = ["#### Mean over clips\n", table(["metric", *labels], _metric_rows(
+        {k: [r.overall[k] for r in results] for k in M.METRIC_NAMES}))]  # fmt: skip
+    for c, clip in enumerate(results[0].clips):
+        values = {k: [float(r.per_clip[k][c]) for r in results] for k in M.METRIC_NAMES}
+        parts += [f"\n#### Clip `{clip}`\n", table(["metric", *labels], _metric_rows(values))]
+    return "\n".join(parts)
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.1f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
+
+
+def threshold_table(runs: list[Run]) -> str:
+    """Samples and training wall-clock (evaluation time excluded) at the first logged evaluation reaching each one."""
+    rows = []
+    for run in runs:
+        row = [run.label]
+        for t in THRESHOLDS:
+            samples, seconds, values = run.curve(t.key)
+            hit = next((i for i, v in enumerate(values) if t.reached(v)), None)
+            row.append("not reached" if hit is None else f"{samples[hit]:,} samples / {_duration(seconds[hit])}")
+        rows.append(row)
+    return table(["run", *(t.label for t in THRESHOLDS)], rows)
+
+
+def world_model_table(runs: list[Run]) -> str | None:
+    """Last logged held-out world-model position error per horizon; None when no run logged one."""
+    rows = []
+    for run in runs:
+        for horizon, key in world_model_keys(run):
+            samples, _, values = run.curve(key)
+            rows.append([run.label, str(horizon), fmt(values[-1]), f"{samples[-1]:,}"])
+    return table(["run", "horizon (frames)", "position error", "at samples"], rows) if rows else None
+
+
+def runs_table(runs: list[Run]) -> str:
+    """Machine, versions, seed and checkpoint of every run."""
+    rows = []
+    for run in runs:
+        i = run.info
+        rows.append([
+            run.label, run.learner, str(run.seed), ", ".join(run.motions), f"{run.iteration} ({run.checkpoint.name})",
+            f"{run.samples:,}", f"{run.train_seconds / 60:.2f}", f"{i.get('cpu')} x{i.get('cpu_count')}",
+            str(i.get("torch_threads")), str(i.get("gpu") or "none"),
+            f"python {i.get('python')}, torch {i.get('torch')}, mujoco {i.get('mujoco')}, numpy {i.get('numpy')}",
+        ])  # fmt: skip
+    header = ["run", "learner", "seed", "trained on", "iteration (checkpoint)", "samples", "train min", "CPU",
+              "torch threads", "GPU", "versions"]  # fmt: skip
+    return table(header, rows)
+
+
+def configs_block(runs: list[Run]) -> str:
+    """Every run's resolved config and command line, as fenced JSON."""
+    parts = []
+    for run in runs:
+        parts.append(f"**{run.label}** (`{run.info.get('command', '?')}`)\n")
+        parts.append("```json\n" + json.dumps(run.config, indent=1, default=str) + "\n```\n")
+    return "\n".join(parts)
+
+
+def spread_table(runs: list[Run], results: list[EvalResult]) -> str | None:
+    """Mean ± std over the runs of each learner (several seeds); None when every learner has one run."""
+    groups: dict[str, list[int]] = {}
+    for i, run in enumerate(runs):
+        groups.setdefault(run.learner, []).append(i)
+    if all(len(g) < 2 for g in groups.values()):
+        return None
+    rows = []
+    for key in M.METRIC_NAMES:
+        row = [key]
+        for idx in groups.values():
+            v = np.array([results[i].overall[key] for i in idx])
+            row.append(f"{fmt(v.mean())} ± {fmt(v.std(ddof=1) if len(v) > 1 else 0.0)} (n={len(v)})")
+        rows.append(row)
+    return table(["metric", *groups], rows)

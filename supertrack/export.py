@@ -1,0 +1,59 @@
+"""Rebuilds SuperTrack's deterministic policy from a run's checkpoint, for the comparison report.
+
+Only the policy network (with its Local() normaliser, stored as module buffers in the checkpoint) and the actor's
+offset scale are needed to act: the world model, optimisers, buffers and the training gym are not rebuilt.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from common.config import load_config
+from common.evaluate import Policy as EvalPolicy
+from common.humanoid import Humanoid
+from common.motion_library import MotionLibrary
+from supertrack.actor import Actor
+from supertrack.config import SuperTrackConfig
+from supertrack.models import Policy
+from supertrack.normalizer import Normalizer
+
+
+def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, library: MotionLibrary) -> EvalPolicy:
+    """The deterministic SuperTrack policy stored in ``checkpoint``.
+
+    Args:
+        run_dir: The run directory (its ``config.yaml`` gives the network sizes and alpha).
+        checkpoint: A checkpoint written by the trainer.
+        humanoid: The model.
+        library: The motions to evaluate on (unused: the normaliser comes from the checkpoint, not from the
+            evaluation motions, so the policy sees exactly the features it was trained on).
+
+    Returns:
+        A callable from the gym's StepResult to hinge PD targets (N, nu).
+
+    Raises:
+        ValueError: If the checkpoint holds no SuperTrack policy or does not fit the config.
+    """
+    del library
+    cfg = load_config(SuperTrackConfig, Path(run_dir) / "config.yaml")
+    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    try:
+        weights = state["learner"]["policy"]
+    except (KeyError, TypeError) as e:
+        raise ValueError(f"{checkpoint}: no SuperTrack policy in this checkpoint ({e})") from e
+    # Placeholder statistics of the right size; load_state_dict overwrites them with the trained ones.
+    size = int(weights["local_norm.mean"].shape[0])
+    norm = Normalizer(np.zeros(size), np.ones(size))
+    net = Policy(len(humanoid.joint_groups), cfg.policy.hidden, norm, cfg.policy.init_scale)
+    if size != 16 * humanoid.num_bodies + 3:
+        # Local() is 16 values per body plus 3 (see supertrack.state.BodyState.local): another size, another model.
+        raise ValueError(f"{checkpoint}: policy input size {size} does not fit a {humanoid.num_bodies}-body model")
+    try:
+        net.load_state_dict(weights)
+    except RuntimeError as e:
+        raise ValueError(f"{checkpoint}: policy weights do not match {run_dir}/config.yaml: {e}") from e
+    net.eval()
+    return Actor(humanoid, net, cfg.policy.alpha).deterministic

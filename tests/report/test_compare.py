@@ -1,0 +1,142 @@
+"""The comparison report built from two tiny debug runs (SuperTrack and PPO, a few seconds each)."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from common import metrics as M
+from common.evaluate import evaluate
+from common.humanoid import Humanoid
+from common.logs import read_metrics
+from common.motion_dataset import load_motions
+from ppo.train import main as train_ppo
+from report.compare import Report, build_report, main
+from report.runs import ReportError, export_module, load_run
+from supertrack.train import run as train_supertrack
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    torch.set_num_threads(1)
+    base = tmp_path_factory.mktemp("runs")
+    train_supertrack(["--config", str(ROOT / "configs/supertrack/debug.yaml"), "--out", str(base / "st")])
+    train_ppo(["--config", str(ROOT / "configs/ppo/debug.yaml"), "--out", str(base / "ppo")])
+    return {"supertrack": base / "st", "ppo": base / "ppo"}
+
+
+@pytest.fixture(scope="module")
+def report(runs: dict[str, Path], tmp_path_factory: pytest.TempPathFactory) -> Report:
+    out = tmp_path_factory.mktemp("report")
+    return build_report([runs["supertrack"], runs["ppo"]], out, do_render=False)
+
+
+def _markdown_table(md: str, heading: str) -> dict[str, list[float]]:
+    """{metric: [value per run]} of the table under ``heading``."""
+    block = md.split(heading, 1)[1].split("\n\n", 2)[1]
+    rows = {}
+    for line in block.splitlines()[2:]:
+        cells = [c.strip().strip("*") for c in line.strip("|").split("|")]
+        rows[cells[0].split(" ")[0].rstrip(",")] = [float(c) for c in cells[1:]]
+    return rows
+
+
+def test_tables_hold_the_evaluators_numbers(runs: dict[str, Path], report: Report) -> None:
+    md = (report.files["markdown"]).read_text()
+    overall = _markdown_table(md, "#### Mean over clips")
+    per_clip = _markdown_table(md, "#### Clip `walk`")
+    assert list(overall) == list(M.METRIC_NAMES)
+    for col, name in enumerate(("supertrack", "ppo")):
+        run = load_run(runs[name])
+        humanoid = Humanoid(run.physics())
+        library = load_motions(["walk"], humanoid)
+        policy = export_module(name).load_eval_policy(run.path, run.checkpoint, humanoid, library)
+        fresh = evaluate(policy, library, humanoid, run.eval_config())
+        # The trainer evaluated the live learner at the end of training: the exported policy must act identically.
+        logged = read_metrics(run.path)[-1]
+        assert fresh.overall["mpjpe_g"] == pytest.approx(logged["eval/mpjpe_g"], rel=1e-9)
+        for key in M.METRIC_NAMES:
+            assert overall[key][col] == pytest.approx(fresh.overall[key], rel=1e-5, abs=1e-12)
+            assert per_clip[key][col] == pytest.approx(fresh.per_clip[key][0], rel=1e-5, abs=1e-12)
+            assert fresh.overall[key] == pytest.approx(logged[f"eval/{key}"], rel=1e-9, abs=1e-12)
+        assert 0 < fresh.overall["mpjpe_g"] < 1000
+
+
+def test_best_per_row_is_marked(report: Report) -> None:
+    md = report.files["markdown"].read_text()
+    row = next(line for line in md.splitlines() if line.startswith("| mpjpe_g"))
+    values = [float(c.strip().strip("*")) for c in row.strip("|").split("|")[1:]]
+    bold = [c.strip().startswith("**") for c in row.strip("|").split("|")[1:]]
+    assert bold == [v == min(values) for v in values] or values[0] == values[1]
+
+
+def test_report_files_and_sections(report: Report) -> None:
+    md = report.files["markdown"].read_text()
+    for section in ("Learning curves", "Samples and wall-clock to reach thresholds", "World-model diagnostics",
+                    "Filmstrips", "Runs: machine, versions, seeds", "Configs"):  # fmt: skip
+        assert section in md
+    assert "switched off with --no-render" in md
+    # World-model errors come from SuperTrack's log, at every horizon it logged.
+    wm = {int(h) for h in re.findall(r"\| supertrack:st \| (\d+) \|", md)}
+    assert wm == {1, 8, 32}
+    page = report.files["html"].read_text()
+    assert page.count("data:image/png;base64,") == 2  # curves + world model, embedded
+    assert 'src="learning_curves.png"' not in page
+    results = json.loads(report.files["results"].read_text())
+    assert [r["learner"] for r in results["runs"]] == ["supertrack", "ppo"]
+    assert report.files["curves"].stat().st_size > 1000
+
+
+def test_thresholds_come_from_the_logged_curve(runs: dict[str, Path], report: Report) -> None:
+    md = report.files["markdown"].read_text()
+    rows = [line for line in md.splitlines() if line.startswith("| ppo:ppo |") and "samples" in line]
+    first = next(m for m in read_metrics(runs["ppo"]) if "eval/survival" in m and m["eval/survival"] >= 0.9)
+    assert rows and f"{first['samples']:,} samples" in rows[0].split("|")[2]
+
+
+def test_bad_directories_are_named(runs: dict[str, Path], tmp_path: Path) -> None:
+    with pytest.raises(ReportError, match="not a run directory"):
+        load_run(tmp_path)
+    unfinished = tmp_path / "unfinished"
+    shutil.copytree(runs["ppo"], unfinished)
+    shutil.rmtree(unfinished / "checkpoints")
+    with pytest.raises(ReportError, match="unfinished run"):
+        load_run(unfinished)
+    with pytest.raises(ReportError, match="no checkpoint of iteration 999"):
+        load_run(runs["ppo"], iteration=999)
+    with pytest.raises(SystemExit, match="unfinished"):
+        main([str(runs["ppo"]), str(unfinished), "--out", str(tmp_path / "r"), "--no-render"])
+
+
+def test_mixed_training_motion_sets_are_reported(runs: dict[str, Path], tmp_path: Path) -> None:
+    other = tmp_path / "other"
+    shutil.copytree(runs["ppo"], other)
+    info = json.loads((other / "run_info.json").read_text())
+    info["motions"] = ["run"]
+    (other / "run_info.json").write_text(json.dumps(info))
+    report = build_report([runs["ppo"], other], tmp_path / "r", do_render=False)
+    md = report.files["markdown"].read_text()
+    assert "TRAINED on different motion sets" in md
+    # Same checkpoint, same protocol: identical numbers under two labels.
+    a, b = report.results
+    assert np.array_equal(a.per_clip["mpjpe_g"], b.per_clip["mpjpe_g"])
+    assert [r.label for r in report.runs] == ["ppo:ppo", "ppo:other"]
+
+
+def test_filmstrip_or_reason(runs: dict[str, Path], tmp_path: Path) -> None:
+    report = build_report([runs["supertrack"]], tmp_path / "r", max_frames=12)
+    md = report.files["markdown"].read_text()
+    strips = list((tmp_path / "r").glob("filmstrip_*.png"))
+    if strips:
+        assert "![supertrack:st walk](filmstrip_supertrack_st_walk.png)" in md
+        assert strips[0].stat().st_size > 1000
+    else:
+        assert "Filmstrips were not rendered" in md
