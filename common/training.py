@@ -41,7 +41,8 @@ class TrainConfig:
         motions: Motion specs (bundled clip names, ``all``, files, folders, a dataset ``.h5``).
         seed: Seed of python, numpy and torch RNGs; the gym's seed is this plus ``gym.seed`` (see :func:`gym_config`).
         device: ``cpu`` or ``cuda`` (``cuda:1``, ...) for the networks; the physics always runs on the CPU.
-        torch_threads: CPU threads torch may use (the physics uses the gym's own threads).
+        torch_threads: CPU threads torch may use (the physics uses the gym's own threads). 1 by default: with 2,
+            torch's spinning threads made updates 3-10x slower whenever the other core was busy (measured here).
         max_minutes: Stop after this much training wall-clock time (evaluation time excluded); None: no limit.
         max_samples: Stop after this many environment samples (character steps); None: no limit.
         max_iterations: Stop after this many iterations; None: no limit.
@@ -56,7 +57,7 @@ class TrainConfig:
     motions: tuple[str, ...] = ("walk",)
     seed: int = 0
     device: str = "cpu"
-    torch_threads: int = 2
+    torch_threads: int = 1
     max_minutes: float | None = 60.0
     max_samples: int | None = None
     max_iterations: int | None = None
