@@ -66,6 +66,8 @@ def local_features(body_pos: Any, body_rot: Any, body_linvel: Any, body_angvel: 
         up (..., 3).
     """
     rot_lib, xp = _lib(body_pos)
+    if xp is torch:
+        return _local_features_torch(body_pos, body_rot, body_linvel, body_angvel)
     root_rot = body_rot[..., :1, :]
     root_pos = body_pos[..., :1, :]
     inv = rot_lib.quat_conj(root_rot)
@@ -78,6 +80,29 @@ def local_features(body_pos: Any, body_rot: Any, body_linvel: Any, body_angvel: 
         "angvel": rot_lib.quat_rotate(inv, body_angvel),
         "height": body_pos[..., 2:3],
         "up": rot_lib.quat_rotate(inv[..., 0, :], up),
+    }
+
+
+def _local_features_torch(body_pos: torch.Tensor, body_rot: torch.Tensor, body_linvel: torch.Tensor,
+                          body_angvel: torch.Tensor) -> dict[str, torch.Tensor]:  # fmt: skip
+    """:func:`local_features` for tensors through one root rotation matrix M.
+
+    A row vector v expressed in the root frame is v M (= (M^T v)^T); a body's two-axis in the root frame is the
+    first two columns of M^T B (B: the body's matrix), whose transpose is B[:, :2]^T M; the up vector is M's row 2.
+    """
+    m = th_rot.quat_to_matrix(body_rot[..., 0, :])  # (..., 3, 3)
+    n = body_pos.shape[-2]
+    vectors = torch.cat([body_pos - body_pos[..., :1, :], body_linvel, body_angvel], dim=-2)  # (..., 3N, 3)
+    local = th_rot.rows_times_matrix(vectors, m[..., None, :, :])
+    body_cols = th_rot.quat_to_matrix(body_rot)[..., :2].transpose(-1, -2)  # (..., N, 2, 3): rows are columns
+    rot = th_rot.rows_times_matrix(body_cols, m[..., None, None, :, :]).reshape(*body_rot.shape[:-1], 6)
+    return {
+        "pos": local[..., :n, :],
+        "vel": local[..., n : 2 * n, :],
+        "rot": rot,
+        "angvel": local[..., 2 * n :, :],
+        "height": body_pos[..., 2:3],
+        "up": m[..., 2, :],
     }
 
 

@@ -72,8 +72,26 @@ def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
     w, u = q[..., :1], q[..., 1:]
     u, v = torch.broadcast_tensors(u, v)
     # q v q* = v + w t + u x t with t = 2 u x v.
-    t = 2.0 * torch.linalg.cross(u, v, dim=-1)
-    return v + w * t + torch.linalg.cross(u, t, dim=-1)
+    t = 2.0 * cross(u, v)
+    return v + w * t + cross(u, t)
+
+
+def cross(a: Tensor, b: Tensor) -> Tensor:
+    """Cross product over the last axis, (..., 3) x (..., 3) -> (..., 3).
+
+    Component-wise: on small CPU batches this is several times faster than ``torch.linalg.cross``.
+    """
+    ax, ay, az = a.unbind(-1)
+    bx, by, bz = b.unbind(-1)
+    return torch.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], dim=-1)
+
+
+def rows_times_matrix(v: Tensor, m: Tensor) -> Tensor:
+    """Row vectors times 3 x 3 matrices, ``v @ m`` with broadcasting: (..., 3) and (..., 3, 3) -> (..., 3).
+
+    One broadcast multiply and sum: for millions of tiny products this beats batched ``matmul`` on the CPU.
+    """
+    return (v[..., :, None] * m).sum(dim=-2)
 
 
 def quat_rotate_inv(q: Tensor, v: Tensor) -> Tensor:
@@ -153,7 +171,7 @@ def two_axis_to_matrix(x: Tensor) -> Tensor:
     c0 = a / torch.linalg.vector_norm(a, dim=-1, keepdim=True).clamp_min(_EPS)
     b = b - (c0 * b).sum(dim=-1, keepdim=True) * c0
     c1 = b / torch.linalg.vector_norm(b, dim=-1, keepdim=True).clamp_min(_EPS)
-    return torch.stack([c0, c1, torch.linalg.cross(c0, c1, dim=-1)], dim=-1)
+    return torch.stack([c0, c1, cross(c0, c1)], dim=-1)
 
 
 def quat_yaw(q: Tensor) -> Tensor:

@@ -14,7 +14,10 @@ P_{i+1} is compared with, and target_rot[i] leads from sim[i] to sim[i + 1].
 from __future__ import annotations
 
 import math
+import os
+import shutil
 import time
+import warnings
 from typing import Any
 
 import numpy as np
@@ -36,7 +39,7 @@ from supertrack.normalizer import (
     local_normalizer,
     target_normalizer,
 )
-from supertrack.rollout import policy_rollout, world_model_rollout
+from supertrack.rollout import Steps, compile_steps, policy_rollout, world_model_rollout
 from supertrack.state import STATE_WIDTH, BodyState, pack_character_state
 
 # Floor of the acceleration normaliser's std (m/s^2, rad/s^2): reference clips hold some bodies nearly still.
@@ -89,7 +92,9 @@ class SuperTrackLearner:
             n_bodies, revolute, cfg.world_model.hidden, local_norm, target_normalizer(library, humanoid, min_std),
             acceleration_normalizer(library, ACCEL_MIN_STD), humanoid.physics.control_dt, cfg.world_model.init_scale,
         ).to(self.device)  # fmt: skip
-        self.policy_net = Policy(n_joints, cfg.policy.hidden, local_norm, cfg.policy.init_scale).to(self.device)
+        self.policy_net = Policy(n_joints, cfg.policy.hidden, local_norm, cfg.policy.init_scale,
+                                 root_offset=cfg.policy.root_offset).to(self.device)  # fmt: skip
+        self.steps = _steps(cfg)
         self.world_optimizer = torch.optim.RAdam(self.world_model.parameters(), lr=cfg.world_model.lr)
         self.policy_optimizer = torch.optim.RAdam(self.policy_net.parameters(), lr=cfg.policy.lr)
         self._new_guards()
@@ -195,7 +200,7 @@ class SuperTrackLearner:
         c = self.cfg.world_model
         windows = self.train_buffer.sample_windows(c.batch, c.window, self.rng)
         sim = BodyState.unpack(self._tensor(windows["sim"]))
-        predicted = world_model_rollout(self.world_model, sim, self._tensor(windows["target_rot"]))
+        predicted = world_model_rollout(self.world_model, sim, self._tensor(windows["target_rot"]), self.steps)
         loss, metrics = world_model_loss(predicted, sim.map(lambda x: x[:, 1:]), c.weights)
         stats = _batch_stats(windows["sim"])
         return self._optimize("world_model", loss, metrics, self.world_model, self.world_optimizer,
@@ -208,7 +213,7 @@ class SuperTrackLearner:
         kin_next = BodyState.unpack(self._tensor(windows["kin_next"]))
         kin_rot = self._tensor(windows["kin_next_joint_rot"])
         noise = c.sigma * torch.randn(kin_rot.shape[:-1] + (3,), device=self.device)
-        rollout = policy_rollout(self.policy_net, self.world_model, sim0, kin_next, kin_rot, noise, c.alpha)
+        rollout = policy_rollout(self.policy_net, self.world_model, sim0, kin_next, kin_rot, noise, c.alpha, self.steps)
         loss, metrics = policy_loss(rollout.predicted, kin_next, rollout.offsets, c.weights)
         stats = _batch_stats(windows["sim"][:, 0])
         return self._optimize("policy", loss, metrics, self.policy_net, self.policy_optimizer,
@@ -237,6 +242,22 @@ class SuperTrackLearner:
             out["charts/episode_length"] = c["episode_frames"] / c["episodes"]
             out["charts/terminated_share"] = c["terminated"] / c["episodes"]
         return out
+
+
+def _steps(cfg: SuperTrackConfig) -> Steps:
+    """The rollout step functions, compiled where the config asks."""
+    plain = Steps()
+    if not (cfg.world_model.compile or cfg.policy.compile):
+        return plain
+    if torch.device(cfg.train.device).type == "cpu" and not any(
+        shutil.which(c) for c in (os.environ.get("CXX", "g++"), "g++", "clang++", "c++")
+    ):
+        warnings.warn("world_model.compile / policy.compile: no C++ compiler on PATH (torch.compile needs one on "
+                      "the CPU); running the rollouts uncompiled, about 2x slower", stacklevel=2)  # fmt: skip
+        return plain
+    compiled = compile_steps()
+    return Steps(world=compiled.world if cfg.world_model.compile else plain.world,
+                 policy=compiled.policy if cfg.policy.compile else plain.policy)  # fmt: skip
 
 
 def _batch_stats(packed_sim: np.ndarray) -> dict[str, float]:

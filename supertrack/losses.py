@@ -48,7 +48,7 @@ def world_model_loss(
 
 def policy_loss(predicted: BodyState, kin: BodyState, offsets: Tensor,
                 weights: PolicyLossWeights) -> tuple[Tensor, dict[str, Tensor]]:  # fmt: skip
-    """L1 local-space tracking loss of a policy rollout plus the offset regularisers.
+    """L1 local-space tracking loss of a policy rollout, world-space root terms and the offset regularisers.
 
     Args:
         predicted: P_1 .. P_L, fields (B, T, N, k).
@@ -62,6 +62,9 @@ def policy_loss(predicted: BodyState, kin: BodyState, offsets: Tensor,
     sim_local = local_features(predicted.pos, predicted.rot, predicted.vel, predicted.angvel)
     kin_local = local_features(kin.pos, kin.rot, kin.vel, kin.angvel)
     terms = {k: (sim_local[k] - kin_local[k]).abs().mean() for k in POLICY_TERMS}
+    # World-space root terms (weights 0 in the paper's loss): the only terms that see drift.
+    terms["root_pos"] = (predicted.pos[..., 0, :] - kin.pos[..., 0, :]).abs().mean()
+    terms["root_rot"] = rotation_error(predicted.rot[..., 0, :], kin.rot[..., 0, :]).abs().mean()
     terms["offset_l1"] = offsets.abs().mean()
     terms["offset_l2"] = offsets.square().mean()
     loss = sum(getattr(weights, k) * v for k, v in terms.items())

@@ -78,9 +78,10 @@ class WorldModel(nn.Module):
                                     target_rot: Tensor) -> tuple[Tensor, Tensor]:  # fmt: skip
         """:meth:`accelerations` with Local(P_i) already normalised by ``self.local_norm``. Shape: (B, D)."""
         x = torch.cat([local_features, self.target_norm.normalize(target_features(target_rot, self.revolute))], dim=-1)
-        acc = self.accel_norm.denormalize(self.net(x)).reshape(*x.shape[:-1], 2, self.num_bodies, 3)
-        world = R.quat_rotate(state.rot[..., None, :1, :], acc)
-        return world[..., 0, :, :], world[..., 1, :, :]
+        acc = self.accel_norm.denormalize(self.net(x)).reshape(*x.shape[:-1], 2 * self.num_bodies, 3)
+        # Root frame -> world: M a for column vectors, i.e. a M^T for the rows here.
+        world = R.rows_times_matrix(acc, R.quat_to_matrix(state.rot[..., 0, :]).transpose(-1, -2)[..., None, :, :])
+        return world[..., : self.num_bodies, :], world[..., self.num_bodies :, :]
 
     def forward(self, state: BodyState, target_rot: Tensor) -> BodyState:
         """P_{i+1} = integrate(P_i, W(Local(P_i), T_i)). Shapes as :meth:`accelerations`."""
@@ -89,6 +90,33 @@ class WorldModel(nn.Module):
     def step_from_features(self, state: BodyState, local_features: Tensor, target_rot: Tensor) -> BodyState:
         """:meth:`forward` with Local(P_i) already normalised by ``self.local_norm`` (shared with the policy)."""
         return integrate(state, *self.accelerations_from_features(state, local_features, target_rot), self.dt)
+
+
+# Scales of the root-offset features (fixed: the kinematic database, where they are all zero, cannot supply them).
+ROOT_OFFSET_POS_SCALE = 0.25  # m per unit
+ROOT_OFFSET_SIZE = 9  # 3 position + 6 two-axis
+
+
+def root_offset_features(sim: BodyState, kin: BodyState) -> Tensor:
+    """Where the reference's root is as seen from the simulated root: the drift that Local() cannot show.
+
+    Local(S) and Local(K) are each relative to their own root, so a policy reading only them cannot tell that the
+    simulated character has drifted away from the reference in the world. These 9 values can: the reference root's
+    position in the simulated root's frame (/ 0.25 m) and the two-axis of inv(sim root) * reference root minus the
+    identity's (zero when the roots coincide).
+
+    Args:
+        sim: P_i (or S_i), leading shape (...,).
+        kin: K_{i+1}, same leading shape.
+
+    Returns:
+        Shape: (..., 9).
+    """
+    m = R.quat_to_matrix(sim.rot[..., 0, :])
+    pos = R.rows_times_matrix(kin.pos[..., 0, :] - sim.pos[..., 0, :], m) / ROOT_OFFSET_POS_SCALE
+    rel = R.quat_to_two_axis(R.quat_mul(R.quat_conj(sim.rot[..., 0, :]), kin.rot[..., 0, :]))
+    identity = torch.tensor([1.0, 0.0, 0.0, 0.0, 1.0, 0.0], dtype=rel.dtype, device=rel.device)
+    return torch.cat([pos, rel - identity], dim=-1)
 
 
 class Policy(nn.Module):
@@ -100,16 +128,20 @@ class Policy(nn.Module):
         local_norm: Normaliser of Local() (shared by both inputs).
         init_scale: Factor on the output layer's initial weights, so that training starts near o = 0
             (open-loop playback of the reference).
+        root_offset: Also read :func:`root_offset_features` (the paper's policy does not; without them the policy
+            cannot correct drift in the world).
     """
 
-    def __init__(self, num_joints: int, hidden: Sequence[int], local_norm: Normalizer, init_scale: float) -> None:
+    def __init__(self, num_joints: int, hidden: Sequence[int], local_norm: Normalizer, init_scale: float,
+                 root_offset: bool = False) -> None:  # fmt: skip
         super().__init__()
-        self.num_joints = num_joints
+        self.num_joints, self.root_offset = num_joints, root_offset
         self.local_norm = local_norm
-        self.net = mlp(2 * local_norm.size, hidden, 3 * num_joints, out_scale=init_scale)
+        in_size = 2 * local_norm.size + (ROOT_OFFSET_SIZE if root_offset else 0)
+        self.net = mlp(in_size, hidden, 3 * num_joints, out_scale=init_scale)
 
     def forward(self, sim: BodyState, kin_next: BodyState) -> Tensor:
-        """o_i = Pi([Local(P_i), Local(K_{i+1})]).
+        """o_i = Pi([Local(P_i), Local(K_{i+1})] (+ root offset)).
 
         Args:
             sim: P_i (or S_i in the gym), leading shape (B,).
@@ -118,13 +150,20 @@ class Policy(nn.Module):
         Returns:
             Offsets. Shape: (B, J, 3).
         """
-        return self.from_features(self.features(sim), self.features(kin_next))
+        return self.from_features(self.features(sim), self.features(kin_next), sim, kin_next)
 
     def features(self, state: BodyState) -> Tensor:
         """Normalised Local() of a state: (..., N, k) fields -> (..., D)."""
         return self.local_norm.normalize(state.local())
 
-    def from_features(self, sim_features: Tensor, kin_next_features: Tensor) -> Tensor:
-        """Offsets from precomputed :meth:`features` (a rollout computes the reference's once). (B, D) -> (B, J, 3)."""
-        x = torch.cat([sim_features, kin_next_features], dim=-1)
+    def from_features(self, sim_features: Tensor, kin_next_features: Tensor, sim: BodyState,
+                      kin_next: BodyState) -> Tensor:  # fmt: skip
+        """Offsets from precomputed :meth:`features` (a rollout computes the reference's once). (B, D) -> (B, J, 3).
+
+        ``sim`` and ``kin_next`` are read only for the root offset.
+        """
+        parts = [sim_features, kin_next_features]
+        if self.root_offset:
+            parts.append(root_offset_features(sim, kin_next))
+        x = torch.cat(parts, dim=-1)
         return self.net(x).reshape(*x.shape[:-1], self.num_joints, 3)

@@ -69,3 +69,18 @@ def test_policy_loss_is_local_a_shift_of_the_whole_character_costs_only_height()
     assert metrics["losses/policy_pos"].item() == pytest.approx(0.0, abs=1e-12)
     assert metrics["losses/policy_height"].item() == pytest.approx(0.3)
     assert loss.item() == pytest.approx(weights.height * 0.3)
+
+
+def test_root_terms_see_the_drift_that_the_local_terms_miss() -> None:
+    kin = _still(bodies=3)
+    pred = _still(bodies=3)
+    pred.pos = pred.pos + torch.tensor([0.5, -0.2, 0.0], dtype=torch.float64)
+    # The root turned 0.6 rad about +z: log = (0, 0, 0.6), mean |component| = 0.2.
+    pred.rot = pred.rot.clone()
+    pred.rot[..., 0, :] = torch.tensor([math.cos(0.3), 0.0, 0.0, math.sin(0.3)], dtype=torch.float64)
+    weights = PolicyLossWeights(pos=0, vel=0, rot=0, angvel=0, height=0, up=0, offset_l1=0, offset_l2=0,
+                                root_pos=2.0, root_rot=5.0)  # fmt: skip
+    loss, metrics = policy_loss(pred, kin, torch.zeros(1, 1, 12, 3, dtype=torch.float64), weights)
+    assert metrics["losses/policy_root_pos"].item() == pytest.approx(0.7 / 3)
+    assert metrics["losses/policy_root_rot"].item() == pytest.approx(0.2)
+    assert loss.item() == pytest.approx(2.0 * 0.7 / 3 + 5.0 * 0.2)

@@ -2,19 +2,22 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
 
+from common import torch_rotations as R
 from common.gym import GymConfig, TrackingGym
 from common.humanoid import Humanoid, hinges_to_joint_rotations
 from common.motion_dataset import load_motions
 from common.motion_library import MotionLibrary
 from supertrack.config import PolicyLossWeights, WorldLossWeights
 from supertrack.losses import policy_loss, world_model_loss
-from supertrack.models import Policy, WorldModel
+from supertrack.models import ROOT_OFFSET_POS_SCALE, Policy, WorldModel, root_offset_features
 from supertrack.normalizer import acceleration_normalizer, local_normalizer, target_normalizer
-from supertrack.rollout import policy_rollout, world_model_rollout
+from supertrack.rollout import compile_steps, policy_rollout, world_model_rollout
 from supertrack.state import BodyState, pack_character_state, target_rotations
 
 
@@ -121,3 +124,57 @@ def test_normalizers_from_the_motion_dataset(humanoid: Humanoid, library: Motion
     torch.testing.assert_close(local_norm.denormalize(local_norm.normalize(x)), x)
     # Saved in the state dict of any network holding it, so a checkpoint carries it.
     assert "local_norm.mean" in Policy(12, (8,), local_norm, 0.01).state_dict()
+
+
+def _yaw(angle: float) -> torch.Tensor:
+    return torch.tensor([math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2)])
+
+
+def test_root_offset_features_by_hand_and_invariant_to_world_shift_and_yaw(
+    windows: dict[str, torch.Tensor],
+) -> None:
+    sim = BodyState.unpack(windows["sim"][:, 0])
+    torch.testing.assert_close(root_offset_features(sim, sim), torch.zeros(4, 9), atol=1e-6, rtol=0)
+    # A root at the origin facing +y (yaw 90 deg); the reference root 0.5 m along world +x = its right (-y local),
+    # and turned a further 90 deg: local two-axis columns (0, 1, 0) and (-1, 0, 0).
+    pos, rot = torch.zeros(1, 2, 3), torch.zeros(1, 2, 4)
+    pos[..., 2] = 0.9
+    rot[:, :] = _yaw(math.pi / 2)
+    s = BodyState(pos, rot, torch.zeros(1, 2, 3), torch.zeros(1, 2, 3))
+    k = BodyState(pos.clone(), rot.clone(), torch.zeros(1, 2, 3), torch.zeros(1, 2, 3))
+    k.pos[:, 0, 0] = 0.5
+    k.rot[:, 0] = _yaw(math.pi)
+    expected = torch.tensor([[0.0, -0.5 / ROOT_OFFSET_POS_SCALE, 0.0, -1.0, 1.0, 0.0, -1.0, -1.0, 0.0]])
+    torch.testing.assert_close(root_offset_features(s, k), expected, atol=1e-6, rtol=0)
+    # Moving and turning the world under both characters changes nothing.
+    kin = BodyState.unpack(windows["kin_next"][:, 0])
+    q = _yaw(0.7).expand(4, 15, 4)
+    shift = torch.tensor([3.0, -1.0, 0.0])
+
+    def moved(x: BodyState) -> BodyState:
+        return BodyState(R.quat_rotate(q, x.pos) + shift, R.quat_mul(q, x.rot), x.vel, x.angvel)
+
+    torch.testing.assert_close(root_offset_features(moved(sim), moved(kin)), root_offset_features(sim, kin),
+                               atol=1e-5, rtol=0)  # fmt: skip
+
+
+def test_traced_rollout_steps_match_the_plain_ones(humanoid: Humanoid, library: MotionLibrary,
+                                                   windows: dict[str, torch.Tensor]) -> None:  # fmt: skip
+    """torch.compile's graph capture (eager backend: no C++ compiler needed) gives the plain rollout's numbers."""
+    world_model, _ = _networks(humanoid, library, (16,))
+    policy = Policy(len(humanoid.joint_groups), (16,), world_model.local_norm, 0.01, root_offset=True)
+    sim = BodyState.unpack(windows["sim"])
+    kin_next = BodyState.unpack(windows["kin_next"])
+    noise = 0.1 * torch.randn(4, 8, 12, 3, generator=torch.Generator().manual_seed(0))
+    traced = compile_steps(backend="eager")
+    results = []
+    for steps in (None, traced):
+        policy.zero_grad()
+        rollout = policy_rollout(policy, world_model, sim.time(0), kin_next, windows["target_rot"], noise, 2.0, steps)
+        loss, _ = policy_loss(rollout.predicted, kin_next, rollout.offsets, PolicyLossWeights(root_pos=1.0))
+        loss.backward()
+        grads = torch.cat([p.grad.flatten() for p in policy.parameters()])
+        predicted = world_model_rollout(world_model, sim, windows["target_rot"], steps)
+        results.append((loss.detach(), grads, predicted.pos.detach()))
+    for plain, compiled in zip(*results, strict=True):
+        torch.testing.assert_close(compiled, plain)
