@@ -6,6 +6,10 @@ share of each part.
 
     .venv/bin/python benchmarks/supertrack_iteration_time.py                      # default and paper configs
     .venv/bin/python benchmarks/supertrack_iteration_time.py --configs configs/supertrack/default.yaml -n 20
+    .venv/bin/python benchmarks/supertrack_iteration_time.py --configs configs/supertrack/default.yaml --eager-too
+
+With ``--eager-too`` each config is also measured with ``world_model.compile`` and ``policy.compile`` off, in the same
+run, and the ratio printed (the first compiled step of a run compiles: it is the untimed warm-up iteration here).
 """
 
 from __future__ import annotations
@@ -65,14 +69,22 @@ def main() -> None:
     parser.add_argument("--device", default=None, help="torch device (default: the config's)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="config override applied to every config (repeatable)")  # fmt: skip
+    parser.add_argument("--eager-too", action="store_true", help="also measure each config uncompiled; print the ratio")
     args = parser.parse_args()
     print(f"{'config':<40}{'iteration s':>12}{'samples/s':>11}{'gym':>8}{'W step':>8}{'Pi step':>8}   (shares)")
+    eager = ["world_model.compile=false", "policy.compile=false"]
     for config in args.configs:
-        r = measure(config, args.iterations, args.device, args.overrides)
-        parts = r["gym_s"] + r["world_model_s"] + r["policy_s"]
-        shares = [r[k] / parts for k in ("gym_s", "world_model_s", "policy_s")]
-        row = f"{config:<40}{r['iteration_s']:>12.3f}{r['samples_per_s']:>11.0f}"
-        print(row + "".join(f"{s:>8.0%}" for s in shares), flush=True)
+        variants = [("", args.overrides)] + ([(" eager", [*args.overrides, *eager])] if args.eager_too else [])
+        seconds = []
+        for label, overrides in variants:
+            r = measure(config, args.iterations, args.device, overrides)
+            seconds.append(r["iteration_s"])
+            parts = r["gym_s"] + r["world_model_s"] + r["policy_s"]
+            shares = [r[k] / parts for k in ("gym_s", "world_model_s", "policy_s")]
+            row = f"{config + label:<40}{r['iteration_s']:>12.3f}{r['samples_per_s']:>11.0f}"
+            print(row + "".join(f"{s:>8.0%}" for s in shares), flush=True)
+        if len(seconds) == 2:
+            print(f"{'':<40}eager / as configured: {seconds[1] / seconds[0]:.2f}x", flush=True)
 
 
 if __name__ == "__main__":
