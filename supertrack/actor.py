@@ -56,7 +56,7 @@ class Actor:
         kin_joint_rot = hinges_to_joint_rotations(self.humanoid, res.ref_next.qpos).astype(np.float32)
         offsets = self.policy(BodyState.from_character(res.sim, device), BodyState.from_character(res.ref_next, device))
         if noise is not None:
-            offsets = offsets + torch.as_tensor(noise, dtype=offsets.dtype, device=device)
+            offsets = offsets + torch.as_tensor(noise, dtype=offsets.dtype, device=device) * self.policy.dof_mask
         target = target_rotations(offsets, torch.as_tensor(kin_joint_rot, device=device), self.alpha).cpu().numpy()
         hinges = joint_rotations_to_hinges(self.humanoid, target.astype(np.float64), near_qpos=res.ref_next.qpos)
         return Action(hinge_targets=hinges, target_rot=target, kin_next_joint_rot=kin_joint_rot)

@@ -48,7 +48,8 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
     size = int(weights["local_norm.mean"].shape[0])
     norm = Normalizer(np.zeros(size), np.ones(size))
     net = Policy(len(humanoid.joint_groups), cfg.policy.hidden, norm, cfg.policy.init_scale,
-                 root_offset=cfg.policy.root_offset)  # fmt: skip
+                 root_offset=cfg.policy.root_offset,
+                 revolute=torch.tensor([g.kind == "revolute" for g in humanoid.joint_groups]))  # fmt: skip
     if size != 16 * humanoid.num_bodies + 3:
         # Local() is 16 values per body plus 3 (see supertrack.state.BodyState.local): another size, another model.
         raise ValueError(f"{checkpoint}: policy input size {size} does not fit a {humanoid.num_bodies}-body model")

@@ -93,7 +93,7 @@ class SuperTrackLearner:
             acceleration_normalizer(library, ACCEL_MIN_STD), humanoid.physics.control_dt, cfg.world_model.init_scale,
         ).to(self.device)  # fmt: skip
         self.policy_net = Policy(n_joints, cfg.policy.hidden, local_norm, cfg.policy.init_scale,
-                                 root_offset=cfg.policy.root_offset).to(self.device)  # fmt: skip
+                                 root_offset=cfg.policy.root_offset, revolute=revolute).to(self.device)  # fmt: skip
         self.steps = _steps(cfg)
         self.world_optimizer = torch.optim.RAdam(self.world_model.parameters(), lr=cfg.world_model.lr)
         self.policy_optimizer = torch.optim.RAdam(self.policy_net.parameters(), lr=cfg.policy.lr)

@@ -130,12 +130,21 @@ class Policy(nn.Module):
             (open-loop playback of the reference).
         root_offset: Also read :func:`root_offset_features` (the paper's policy does not; without them the policy
             cannot correct drift in the world).
+        revolute: True for each joint driven by a single hinge (about +y). Those joints get an offset about +y only:
+            the other two components would not move the joint (the hinge keeps only its own part of a rotation)
+            yet would bend the hinge angle it does get, ill-conditioned near 180 degrees, and nothing but the
+            regularisers would hold them back. None: every joint spherical.
     """
 
     def __init__(self, num_joints: int, hidden: Sequence[int], local_norm: Normalizer, init_scale: float,
-                 root_offset: bool = False) -> None:  # fmt: skip
+                 root_offset: bool = False, revolute: Tensor | None = None) -> None:  # fmt: skip
         super().__init__()
         self.num_joints, self.root_offset = num_joints, root_offset
+        mask = torch.ones(num_joints, 3)
+        if revolute is not None:
+            mask[revolute] = torch.tensor([0.0, 1.0, 0.0])
+        # Not saved: derived from the character, so checkpoints written before it existed still load.
+        self.register_buffer("dof_mask", mask, persistent=False)
         self.local_norm = local_norm
         in_size = 2 * local_norm.size + (ROOT_OFFSET_SIZE if root_offset else 0)
         self.net = mlp(in_size, hidden, 3 * num_joints, out_scale=init_scale)
@@ -166,4 +175,4 @@ class Policy(nn.Module):
         if self.root_offset:
             parts.append(root_offset_features(sim, kin_next))
         x = torch.cat(parts, dim=-1)
-        return self.net(x).reshape(*x.shape[:-1], self.num_joints, 3)
+        return self.net(x).reshape(*x.shape[:-1], self.num_joints, 3) * self.dof_mask

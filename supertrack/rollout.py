@@ -52,7 +52,7 @@ def policy_world_step(policy: Policy, world_model: WorldModel, sim: Fields, kin_
     # Both networks read the same normalised Local(P_i): computed once per step.
     features = policy.features(state)
     o = policy.from_features(features, kin_features, state, kin_state)
-    target = target_rotations(o + noise, kin_joint_rot, alpha)
+    target = target_rotations(o + noise * policy.dof_mask, kin_joint_rot, alpha)
     s = world_model.step_from_features(state, features, target)
     return s.pos, s.rot, s.vel, s.angvel, o
 
@@ -126,7 +126,8 @@ def policy_rollout(policy: Policy, world_model: WorldModel, sim0: BodyState, kin
                    steps: Steps | None = None) -> PolicyRollout:  # fmt: skip
     """The policy drives W from a recorded state along the recorded reference (Algorithm 2).
 
-    For i = 0 .. L - 1: o_i = Pi(P_i, K_{i+1}); T_i = quat_from_rotvec(alpha (o_i + noise_i)) * k_{i+1};
+    For i = 0 .. L - 1: o_i = Pi(P_i, K_{i+1}); T_i = quat_from_rotvec(alpha (o_i + noise_i)) * k_{i+1} (noise only
+    on the components the policy outputs: a revolute joint's +y);
     P_{i+1} = W(P_i, T_i); P_0 = S_0. W's parameters are frozen here, so the loss trains only the policy.
 
     Args:

@@ -178,3 +178,25 @@ def test_traced_rollout_steps_match_the_plain_ones(humanoid: Humanoid, library: 
         results.append((loss.detach(), grads, predicted.pos.detach()))
     for plain, compiled in zip(*results, strict=True):
         torch.testing.assert_close(compiled, plain)
+
+
+def test_revolute_joints_get_a_hinge_offset_only(humanoid: Humanoid, library: MotionLibrary,
+                                                 windows: dict[str, torch.Tensor]) -> None:  # fmt: skip
+    world_model, _ = _networks(humanoid, library, (16,))
+    revolute = torch.tensor([g.kind == "revolute" for g in humanoid.joint_groups])
+    policy = Policy(len(humanoid.joint_groups), (16,), world_model.local_norm, 1.0, revolute=revolute)
+    sim, kin = BodyState.unpack(windows["sim"][:, 0]), BodyState.unpack(windows["kin_next"][:, 0])
+    offsets = policy(sim, kin)
+    assert bool((offsets[:, revolute][..., [0, 2]] == 0).all()) and bool((offsets[:, revolute][..., 1] != 0).all())
+    assert bool((offsets[:, ~revolute] != 0).all())
+    # A knee's target is then its reference hinge angle plus alpha * o_y: a pure +y rotation, as the hinge applies.
+    noise = torch.randn(4, 12, 3) * policy.dof_mask
+    target = target_rotations(offsets + noise, windows["target_rot"][:, 0], 2.0)[:, revolute]
+    torch.testing.assert_close(target[..., [1, 3]], torch.zeros_like(target[..., [1, 3]]), atol=1e-6, rtol=0)
+    ref = windows["target_rot"][:, 0][:, revolute]
+    angle = 2 * torch.atan2(target[..., 2], target[..., 0])
+    expected = 2 * torch.atan2(ref[..., 2], ref[..., 0]) + 2.0 * (offsets + noise)[:, revolute][..., 1]
+    torch.testing.assert_close(torch.remainder(angle - expected + math.pi, 2 * math.pi) - math.pi,
+                               torch.zeros_like(angle), atol=1e-5, rtol=0)  # fmt: skip
+    # Not part of the state dict: checkpoints from before the mask still load.
+    assert "dof_mask" not in policy.state_dict()

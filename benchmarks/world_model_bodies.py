@@ -1,0 +1,84 @@
+"""Per-body diagnosis of a SuperTrack run: where the world model is wrong, and whether the policy exploits it.
+
+For a run directory's latest (or chosen) checkpoint:
+1. W's one-frame prediction error per body on held-back buffer windows, next to the error of predicting zero
+   acceleration (v' = v). A body where W is no better than that baseline is one W has not learnt.
+2. The trained policy (deterministic) driving the real simulator from reference state initialisation: mean angular
+   speed per body against the reference's. A policy that exploits W's blind spots shows bodies spinning or
+   shaking far faster than the reference does (often the feet and hands).
+
+    .venv/bin/python benchmarks/world_model_bodies.py runs/st-walk-60
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from common.config import load_config  # noqa: E402
+from common.humanoid import Humanoid  # noqa: E402
+from common.motion_dataset import load_motions  # noqa: E402
+from supertrack.config import SuperTrackConfig  # noqa: E402
+from supertrack.learner import SuperTrackLearner  # noqa: E402
+from supertrack.rollout import world_model_rollout  # noqa: E402
+from supertrack.state import BodyState  # noqa: E402
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run_dir", help="a train-supertrack run directory")
+    parser.add_argument("--checkpoint", default=None, help="checkpoint file (default: the run's latest)")
+    parser.add_argument("--windows", type=int, default=512, help="held-back windows for W's error")
+    parser.add_argument("--frames", type=int, default=120, help="control steps of the policy in the simulator")
+    args = parser.parse_args()
+    run = Path(args.run_dir)
+    if not (run / "config.yaml").is_file():
+        raise SystemExit(f"{run}: not a run directory (no config.yaml)")
+    overrides = ["world_model.compile=false", "policy.compile=false"]
+    cfg = load_config(SuperTrackConfig, run / "config.yaml", overrides)
+    checkpoint = Path(args.checkpoint) if args.checkpoint else run / "checkpoints" / "latest.pt"
+    humanoid = Humanoid(cfg.gym.physics)
+    library = load_motions(list(cfg.train.motions), humanoid)
+    learner = SuperTrackLearner(cfg, humanoid, library, np.random.default_rng(0))
+    try:
+        learner.load_state_dict(torch.load(checkpoint, map_location="cpu", weights_only=False)["learner"])
+        windows = learner.val_buffer.sample_windows(args.windows, 2, np.random.default_rng(1))
+        sim = BodyState.unpack(torch.as_tensor(windows["sim"]))
+        with torch.no_grad():
+            pred = world_model_rollout(learner.world_model, sim, torch.as_tensor(windows["target_rot"])).time(0)
+        now, nxt = sim.time(0), sim.time(1)
+
+        def err(a: torch.Tensor, b: torch.Tensor) -> np.ndarray:
+            return (a - b).norm(dim=-1).mean(0).numpy()
+
+        w_vel, base_vel = err(pred.vel, nxt.vel), err(now.vel, nxt.vel)
+        w_ang, base_ang = err(pred.angvel, nxt.angvel), err(now.angvel, nxt.angvel)
+
+        gym, policy = learner.gym, learner.policy()
+        res = gym.reset()
+        sim_speed, ref_speed = [], []
+        for _ in range(args.frames):
+            res = gym.step(policy(res))
+            sim_speed.append(np.linalg.norm(res.sim.body_angvel, axis=-1).mean(0))
+            ref_speed.append(np.linalg.norm(res.ref_next.body_angvel, axis=-1).mean(0))
+    finally:
+        learner.close()
+    print(f"{checkpoint}: W one-frame error on {args.windows} held-back windows; policy over {args.frames} frames")
+    print(f"{'body':<18}{'W vel':>8}{'v=const':>9}{'W angvel':>10}{'w=const':>9}{'|w| sim':>9}{'|w| ref':>9}")
+    s, r = np.mean(sim_speed, axis=0), np.mean(ref_speed, axis=0)
+    for i, name in enumerate(humanoid.body_names):
+        flag = "  <- W no better than w=const" if w_ang[i] >= base_ang[i] else ""
+        print(f"{name:<18}{w_vel[i]:>8.3f}{base_vel[i]:>9.3f}{w_ang[i]:>10.3f}{base_ang[i]:>9.3f}{s[i]:>9.2f}{r[i]:>9.2f}"
+              + flag)  # fmt: skip
+    print("units: m/s and rad/s; |w|: mean angular speed of the body in the simulator (policy) and in the reference")
+
+
+if __name__ == "__main__":
+    main()
