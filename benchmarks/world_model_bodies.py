@@ -4,8 +4,9 @@ For a run directory's latest (or chosen) checkpoint:
 1. W's one-frame prediction error per body on held-back buffer windows, next to the error of predicting zero
    acceleration (v' = v). A body where W is no better than that baseline is one W has not learnt.
 2. The trained policy (deterministic) driving the real simulator from reference state initialisation: mean angular
-   speed per body against the reference's. A policy that exploits W's blind spots shows bodies spinning or
-   shaking far faster than the reference does (often the feet and hands).
+   speed per body against the reference's and against open-loop playback of the reference (PD targets = the
+   reference), which separates what the policy does from what the PD controller and contacts do on their own. A
+   policy that exploits W's blind spots shows bodies spinning or shaking far faster than both (often the feet).
 
     .venv/bin/python benchmarks/world_model_bodies.py runs/st-walk-60
 """
@@ -23,6 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from common.config import load_config  # noqa: E402
+from common.evaluate import reference_policy  # noqa: E402
 from common.humanoid import Humanoid  # noqa: E402
 from common.motion_dataset import load_motions  # noqa: E402
 from supertrack.config import SuperTrackConfig  # noqa: E402
@@ -62,22 +64,29 @@ def main() -> None:
         w_ang, base_ang = err(pred.angvel, nxt.angvel), err(now.angvel, nxt.angvel)
 
         gym, policy = learner.gym, learner.policy()
-        res = gym.reset()
-        sim_speed, ref_speed = [], []
-        for _ in range(args.frames):
-            res = gym.step(policy(res))
-            sim_speed.append(np.linalg.norm(res.sim.body_angvel, axis=-1).mean(0))
-            ref_speed.append(np.linalg.norm(res.ref_next.body_angvel, axis=-1).mean(0))
+
+        def speeds(act) -> tuple[np.ndarray, np.ndarray]:
+            res = gym.reset()
+            sim_speed, ref_speed = [], []
+            for _ in range(args.frames):
+                res = gym.step(act(res))
+                sim_speed.append(np.linalg.norm(res.sim.body_angvel, axis=-1).mean(0))
+                ref_speed.append(np.linalg.norm(res.ref_next.body_angvel, axis=-1).mean(0))
+            return np.mean(sim_speed, axis=0), np.mean(ref_speed, axis=0)
+
+        s, r = speeds(policy)
+        s_open, _ = speeds(lambda res: reference_policy(res, humanoid))
     finally:
         learner.close()
     print(f"{checkpoint}: W one-frame error on {args.windows} held-back windows; policy over {args.frames} frames")
-    print(f"{'body':<18}{'W vel':>8}{'v=const':>9}{'W angvel':>10}{'w=const':>9}{'|w| sim':>9}{'|w| ref':>9}")
-    s, r = np.mean(sim_speed, axis=0), np.mean(ref_speed, axis=0)
+    header = f"{'body':<18}{'W vel':>8}{'v=const':>9}{'W angvel':>10}{'w=const':>9}"
+    print(header + f"{'|w| sim':>9}{'|w| open':>10}{'|w| ref':>9}")
     for i, name in enumerate(humanoid.body_names):
         flag = "  <- W no better than w=const" if w_ang[i] >= base_ang[i] else ""
-        print(f"{name:<18}{w_vel[i]:>8.3f}{base_vel[i]:>9.3f}{w_ang[i]:>10.3f}{base_ang[i]:>9.3f}{s[i]:>9.2f}{r[i]:>9.2f}"
-              + flag)  # fmt: skip
-    print("units: m/s and rad/s; |w|: mean angular speed of the body in the simulator (policy) and in the reference")
+        row = f"{name:<18}{w_vel[i]:>8.3f}{base_vel[i]:>9.3f}{w_ang[i]:>10.3f}{base_ang[i]:>9.3f}"
+        print(row + f"{s[i]:>9.2f}{s_open[i]:>10.2f}{r[i]:>9.2f}" + flag)
+    print("units: m/s and rad/s; |w|: mean angular speed of the body in the simulator under the policy (sim) and under")
+    print("open-loop playback of the reference (open), and in the reference (ref)")
 
 
 if __name__ == "__main__":

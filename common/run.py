@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from common.config import atomic_output, save_config
+from common.config import atomic_output, load_config, save_config
 
 log = logging.getLogger(__name__)
 
@@ -184,6 +184,34 @@ class RunDir:
             raise RunDirError(f"no checkpoint in {self.checkpoint_dir}")
         # Our own file, and it holds numpy RNG state and learner objects that weights_only=True refuses.
         return torch.load(path, map_location=map_location, weights_only=False)
+
+
+def load_run_checkpoint(config_cls: type, run_dir: str | Path, checkpoint: str | Path,
+                        *keys: str) -> tuple[Any, dict[str, Any]]:  # fmt: skip
+    """A run's config and the learner entries ``keys`` of one of its checkpoints (CPU tensors), for export.
+
+    Args:
+        config_cls: The learner's config dataclass (the run's ``config.yaml`` is loaded into it).
+        run_dir: The run directory.
+        checkpoint: A checkpoint written by that run's trainer.
+        *keys: Entries of the checkpoint's ``learner`` state that the caller needs.
+
+    Returns:
+        ``(config, learner_state)``.
+
+    Raises:
+        ValueError: Naming the checkpoint and the missing entry if the file is not this learner's checkpoint.
+    """
+    cfg = load_config(config_cls, Path(run_dir) / "config.yaml")
+    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    learner = state.get("learner") if isinstance(state, Mapping) else None
+    if not isinstance(learner, Mapping):
+        raise ValueError(f"{checkpoint}: no learner state in this file (not a checkpoint of a training run)")
+    missing = [k for k in keys if k not in learner]
+    if missing:
+        raise ValueError(f"{checkpoint}: the learner state has no {', '.join(missing)}; "
+                         f"it is not a checkpoint of {config_cls.__name__}'s learner")  # fmt: skip
+    return cfg, dict(learner)
 
 
 def check_compatible(saved_meta: Mapping[str, Any], current_meta: Mapping[str, Any], path: str | Path) -> None:

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from common.config import load_config
 from common.evaluate import Policy
 from common.gym import StepResult
 from common.humanoid import Humanoid
 from common.motion_library import MotionLibrary
+from common.run import load_run_checkpoint
 from ppo.config import PPOTrackerConfig
 from ppo.networks import ActorCritic
 from ppo.normalizer import RunningNormalizer
@@ -39,13 +39,8 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
         ValueError: If the checkpoint holds no PPO policy or does not fit the config.
     """
     del library
-    cfg = load_config(PPOTrackerConfig, Path(run_dir) / "config.yaml")
-    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    try:
-        learner = state["learner"]
-        sizes, norm_state = learner["sizes"], learner["normalizer"]
-    except (KeyError, TypeError) as e:
-        raise ValueError(f"{checkpoint}: no PPO policy in this checkpoint ({e})") from e
+    cfg, learner = load_run_checkpoint(PPOTrackerConfig, run_dir, checkpoint, "sizes", "normalizer", "net")
+    sizes, norm_state = learner["sizes"], learner["normalizer"]
     if sizes["action"] != humanoid.nu:
         raise ValueError(f"{checkpoint}: {sizes['action']} actions, the model has {humanoid.nu} actuators")
     n = cfg.normalizer

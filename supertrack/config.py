@@ -43,6 +43,8 @@ class PolicyLossWeights:
         up: Per unit of root-frame up vector error.
         offset_l1: Weight of mean |o| (o: the network's offsets before noise).
         offset_l2: Weight of mean o^2.
+        offset_rate: Weight of mean |o_{i+1} - o_i| over the window (not in the paper; 0 turns it off): keeps the
+            PD targets from chattering frame to frame.
         root_pos: Per metre of world-space root position error (not in the paper, whose loss is local only and so
             lets the character drift; 0 turns it off).
         root_rot: Per radian of world-space root rotation error (components of log(q_pred * inv(q_ref))).
@@ -56,6 +58,7 @@ class PolicyLossWeights:
     up: float = 3.0
     offset_l1: float = 0.01
     offset_l2: float = 0.01
+    offset_rate: float = 0.0
     root_pos: float = 0.0
     root_rot: float = 0.0
 

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from common.config import load_config
 from common.evaluate import Policy as EvalPolicy
 from common.humanoid import Humanoid
 from common.motion_library import MotionLibrary
+from common.run import load_run_checkpoint
 from supertrack.actor import Actor
 from supertrack.config import SuperTrackConfig
 from supertrack.models import Policy
@@ -38,12 +38,8 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
         ValueError: If the checkpoint holds no SuperTrack policy or does not fit the config.
     """
     del library
-    cfg = load_config(SuperTrackConfig, Path(run_dir) / "config.yaml")
-    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    try:
-        weights = state["learner"]["policy"]
-    except (KeyError, TypeError) as e:
-        raise ValueError(f"{checkpoint}: no SuperTrack policy in this checkpoint ({e})") from e
+    cfg, learner = load_run_checkpoint(SuperTrackConfig, run_dir, checkpoint, "policy")
+    weights = learner["policy"]
     # Placeholder statistics of the right size; load_state_dict overwrites them with the trained ones.
     size = int(weights["local_norm.mean"].shape[0])
     norm = Normalizer(np.zeros(size), np.ones(size))

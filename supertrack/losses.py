@@ -53,7 +53,7 @@ def policy_loss(predicted: BodyState, kin: BodyState, offsets: Tensor,
     Args:
         predicted: P_1 .. P_L, fields (B, T, N, k).
         kin: K_1 .. K_L, same shapes.
-        offsets: Offsets o before noise. Shape: (B, T, J, 3).
+        offsets: Offsets o before noise. Shape: (B, T, J, 3); the rate term is 0 when T = 1.
         weights: Term weights.
 
     Returns:
@@ -67,6 +67,10 @@ def policy_loss(predicted: BodyState, kin: BodyState, offsets: Tensor,
     terms["root_rot"] = rotation_error(predicted.rot[..., 0, :], kin.rot[..., 0, :]).abs().mean()
     terms["offset_l1"] = offsets.abs().mean()
     terms["offset_l2"] = offsets.square().mean()
+    # Frame-to-frame change of the offsets (not in the paper): a policy that reacts to every wobble of the
+    # simulated velocities makes its PD targets chatter, and the chatter shakes the feet where W is blind.
+    rate = offsets[:, 1:] - offsets[:, :-1]
+    terms["offset_rate"] = rate.abs().mean() if rate.numel() else offsets.new_zeros(())
     loss = sum(getattr(weights, k) * v for k, v in terms.items())
     metrics = {f"losses/policy_{k}": v.detach() for k, v in terms.items()}
     metrics["losses/policy"] = loss.detach()

@@ -17,6 +17,7 @@ from common.run import (
     RunDir,
     RunDirError,
     check_compatible,
+    load_run_checkpoint,
     rng_state,
     set_rng_state,
 )
@@ -158,3 +159,18 @@ def test_write_run_info_records_machine_and_resumes(tmp_path: Path) -> None:
     RunDir(run.path, resume=True).write_run_info({"seed": 8})
     resumed = json.loads(run.run_info_path.read_text())
     assert resumed["seed"] == 7 and [r["seed"] for r in resumed["resumes"]] == [8]
+
+
+def test_load_run_checkpoint_returns_config_and_learner_and_names_what_is_missing(tmp_path: Path) -> None:
+    run = RunDir(tmp_path / "run", resume=False)
+    run.save_config(_Cfg(lr=0.5))
+    path = run.save_checkpoint({"learner": {"policy": {"w": torch.ones(2)}, "iteration": 3}}, iteration=3)
+    cfg, learner = load_run_checkpoint(_Cfg, run.path, path, "policy")
+    assert cfg == _Cfg(lr=0.5)
+    assert torch.equal(learner["policy"]["w"], torch.ones(2))
+    with pytest.raises(ValueError, match=r"ckpt_00000003\.pt: the learner state has no sizes, net; .*_Cfg"):
+        load_run_checkpoint(_Cfg, run.path, path, "policy", "sizes", "net")
+    other = tmp_path / "weights.pt"
+    torch.save({"w": torch.ones(2)}, other)
+    with pytest.raises(ValueError, match=r"weights\.pt: no learner state"):
+        load_run_checkpoint(_Cfg, run.path, other, "policy")

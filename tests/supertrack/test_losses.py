@@ -84,3 +84,19 @@ def test_root_terms_see_the_drift_that_the_local_terms_miss() -> None:
     assert metrics["losses/policy_root_pos"].item() == pytest.approx(0.7 / 3)
     assert metrics["losses/policy_root_rot"].item() == pytest.approx(0.2)
     assert loss.item() == pytest.approx(2.0 * 0.7 / 3 + 5.0 * 0.2)
+
+
+def test_offset_rate_is_the_mean_frame_to_frame_change() -> None:
+    kin = _still(time=3, bodies=3)
+    offsets = torch.zeros(1, 3, 12, 3, dtype=torch.float64)
+    offsets[0, 1, 4] = torch.tensor([0.2, 0.0, -0.4])  # frame 0 -> 1 changes by 0.6 in total, 1 -> 2 by 0.6 back
+    weights = PolicyLossWeights(offset_l1=0.0, offset_l2=0.0, offset_rate=3.0)
+    loss, metrics = policy_loss(kin, kin, offsets, weights)
+    # 2 frame pairs x 12 joints x 3 components = 72 values summing to 1.2
+    assert metrics["losses/policy_offset_rate"].item() == pytest.approx(1.2 / 72)
+    assert loss.item() == pytest.approx(3.0 * 1.2 / 72)
+    # A constant offset has no rate, and one frame has no pair.
+    steady = torch.full((1, 3, 12, 3), 0.3, dtype=torch.float64)
+    assert policy_loss(kin, kin, steady, weights)[1]["losses/policy_offset_rate"].item() == 0.0
+    one = policy_loss(_still(bodies=3), _still(bodies=3), offsets[:, :1], weights)[1]
+    assert one["losses/policy_offset_rate"].item() == 0.0
