@@ -65,17 +65,23 @@ def main() -> None:
 
         gym, policy = learner.gym, learner.policy()
 
-        def speeds(act) -> tuple[np.ndarray, np.ndarray]:
+        def speeds(act) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+            """Mean body angular speeds (sim, ref) and mean |PD target change| per frame per hinge (act, ref)."""
             res = gym.reset()
-            sim_speed, ref_speed = [], []
+            sim_speed, ref_speed, targets, ref_targets = [], [], [], []
             for _ in range(args.frames):
-                res = gym.step(act(res))
+                targets.append(act(res))
+                ref_targets.append(reference_policy(res, humanoid))
+                res = gym.step(targets[-1])
                 sim_speed.append(np.linalg.norm(res.sim.body_angvel, axis=-1).mean(0))
                 ref_speed.append(np.linalg.norm(res.ref_next.body_angvel, axis=-1).mean(0))
-            return np.mean(sim_speed, axis=0), np.mean(ref_speed, axis=0)
+            # Episode resets inside the window make a few large jumps; they count the same for both columns.
+            rate = np.abs(np.diff(targets, axis=0)).mean((0, 1))
+            ref_rate = np.abs(np.diff(ref_targets, axis=0)).mean((0, 1))
+            return np.mean(sim_speed, axis=0), np.mean(ref_speed, axis=0), rate, ref_rate
 
-        s, r = speeds(policy)
-        s_open, _ = speeds(lambda res: reference_policy(res, humanoid))
+        s, r, rate, ref_rate = speeds(policy)
+        s_open = speeds(lambda res: reference_policy(res, humanoid))[0]
     finally:
         learner.close()
     print(f"{checkpoint}: W one-frame error on {args.windows} held-back windows; policy over {args.frames} frames")
@@ -87,6 +93,12 @@ def main() -> None:
         print(row + f"{s[i]:>9.2f}{s_open[i]:>10.2f}{r[i]:>9.2f}" + flag)
     print("units: m/s and rad/s; |w|: mean angular speed of the body in the simulator under the policy (sim) and under")
     print("open-loop playback of the reference (open), and in the reference (ref)")
+    names = [humanoid.model.joint(j).name for j in range(humanoid.model.njnt)]
+    by_qpos = dict(zip(humanoid.model.jnt_qposadr.tolist(), names, strict=True))
+    print(f"\n{'hinge':<18}{'policy':>8}{'ref':>8}   mean |PD target change| per frame (deg)")
+    for k, q in enumerate(humanoid.hinge_qpos):
+        flag = "  <- chatter (> 3x the reference + 0.5 deg)" if rate[k] > 3 * ref_rate[k] + np.radians(0.5) else ""
+        print(f"{by_qpos[int(q)]:<18}{np.degrees(rate[k]):>8.2f}{np.degrees(ref_rate[k]):>8.2f}" + flag)
 
 
 if __name__ == "__main__":
