@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import uuid
 from collections.abc import Mapping
+from typing import Any
 
 import h5py
 import numpy as np
@@ -230,6 +231,39 @@ class CyclicBuffer:
             raise ValueError(f"latest: asked for {steps} time steps, {self._size} stored")
         rows = self._chronological_rows(self._size - steps, steps)
         return {name: np.take(arr, rows, axis=0) for name, arr in self._arrays.items()}
+
+    def state_dict(self) -> dict[str, Any]:
+        """The stored steps for a checkpoint: ``total_pushed`` and ``rows`` (every field, oldest first)."""
+        return {"total_pushed": self.total_pushed, "rows": self.latest(self._size)}
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Replace the stored steps with :meth:`state_dict` output; windows are then sampled exactly as before.
+
+        Raises:
+            ValueError: If a field is missing or unknown, the fields disagree on the number of steps, a field has
+                the wrong per-step shape, or there are more steps than ``rows``. The buffer is unchanged then.
+        """
+        rows = state["rows"]
+        missing, extra = sorted(set(self.fields) - set(rows)), sorted(set(rows) - set(self.fields))
+        if missing or extra:
+            raise ValueError(f"load_state_dict: missing fields {missing}, unknown fields {extra}")
+        steps = {name: len(rows[name]) for name in self.fields}
+        count = steps["episode_id"]
+        if any(n != count for n in steps.values()):
+            raise ValueError(f"load_state_dict: fields hold different numbers of steps {steps}")
+        if count > self._rows:
+            raise ValueError(f"load_state_dict: {count} steps do not fit in {self._rows} rows")
+        for name, (shape, _) in self.fields.items():
+            expected = (count, self.num_envs, *shape)
+            if np.shape(rows[name]) != expected:
+                raise ValueError(
+                    f"load_state_dict: field {name!r} expected shape {expected}, given {np.shape(rows[name])}"
+                )
+        for name, arr in self._arrays.items():
+            arr[:count] = rows[name]
+        self._head = count % self._rows
+        self._size = count
+        self.total_pushed = int(state["total_pushed"])
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the stored steps in chronological order to HDF5, atomically.

@@ -115,6 +115,8 @@ class PolicyConfig:
         root_offset: The policy also reads where the reference root is relative to the simulated one
             (``supertrack.models.root_offset_features``); the paper's policy does not, and cannot correct drift.
         compile: Run the rollout step through ``torch.compile`` (as ``world_model.compile``).
+        step_decay: Weight decay^i of rollout step i in the tracking loss (ControlVAE: 0.95; the paper: 1, a plain
+            mean), so that the later steps, where W's error has compounded, pull less.
     """
 
     hidden: tuple[int, ...] = (1024, 1024, 1024, 1024, 1024)
@@ -129,10 +131,13 @@ class PolicyConfig:
     weights: PolicyLossWeights = field(default_factory=PolicyLossWeights)
     root_offset: bool = False
     compile: bool = False
+    step_decay: float = 1.0
 
     def __post_init__(self) -> None:
         if self.window < 1 or self.batch < 1 or not self.hidden:
             raise ValueError("policy needs window >= 1, batch >= 1 and at least one hidden layer")
+        if not 0.0 < self.step_decay <= 1.0:
+            raise ValueError(f"policy.step_decay must be in (0, 1], got {self.step_decay}")
         if self.sigma < 0 or self.alpha_deg <= 0:
             raise ValueError("policy.sigma must be >= 0 and policy.alpha_deg > 0")
 

@@ -56,20 +56,6 @@ def buffer_fields(num_bodies: int, num_joints: int) -> dict[str, tuple[tuple[int
     }
 
 
-def buffer_state(buffer: CyclicBuffer) -> dict[str, Any]:
-    """The stored frames of a buffer, oldest first (every field, bookkeeping included)."""
-    return {"total_pushed": buffer.total_pushed, "rows": buffer.latest(buffer.size)}
-
-
-def load_buffer_state(buffer: CyclicBuffer, state: dict[str, Any]) -> None:
-    """Refills ``buffer`` with :func:`buffer_state` output; windows are then sampled exactly as before."""
-    rows = state["rows"]
-    buffer.clear()
-    for t in range(len(rows["episode_id"])):
-        buffer.push(**{name: rows[name][t] for name in buffer.fields})
-    buffer.total_pushed = int(state["total_pushed"])
-
-
 class SuperTrackLearner:
     """World model, policy, their optimisers, the gym and the buffers.
 
@@ -173,7 +159,7 @@ class SuperTrackLearner:
             "world_model": self.world_model.state_dict(), "policy": self.policy_net.state_dict(),
             "world_optimizer": self.world_optimizer.state_dict(),
             "policy_optimizer": self.policy_optimizer.state_dict(), "gym": self.gym.state_dict(),
-            "train_buffer": buffer_state(self.train_buffer), "val_buffer": buffer_state(self.val_buffer),
+            "train_buffer": self.train_buffer.state_dict(), "val_buffer": self.val_buffer.state_dict(),
             "updates": self.updates,
         }  # fmt: skip
 
@@ -183,8 +169,8 @@ class SuperTrackLearner:
         self.world_optimizer.load_state_dict(state["world_optimizer"])
         self.policy_optimizer.load_state_dict(state["policy_optimizer"])
         self._res = self.gym.load_state_dict(state["gym"])
-        load_buffer_state(self.train_buffer, state["train_buffer"])
-        load_buffer_state(self.val_buffer, state["val_buffer"])
+        self.train_buffer.load_state_dict(state["train_buffer"])
+        self.val_buffer.load_state_dict(state["val_buffer"])
         self.updates = int(state["updates"])
         self._new_guards()
 
@@ -214,7 +200,7 @@ class SuperTrackLearner:
         kin_rot = self._tensor(windows["kin_next_joint_rot"])
         noise = c.sigma * torch.randn(kin_rot.shape[:-1] + (3,), device=self.device)
         rollout = policy_rollout(self.policy_net, self.world_model, sim0, kin_next, kin_rot, noise, c.alpha, self.steps)
-        loss, metrics = policy_loss(rollout.predicted, kin_next, rollout.offsets, c.weights)
+        loss, metrics = policy_loss(rollout.predicted, kin_next, rollout.offsets, c.weights, c.step_decay)
         stats = _batch_stats(windows["sim"][:, 0])
         return self._optimize("policy", loss, metrics, self.policy_net, self.policy_optimizer,
                               self.policy_guard, c.grad_clip, stats)  # fmt: skip

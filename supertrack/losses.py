@@ -6,6 +6,7 @@ batch or window sizes. Metrics hold the unweighted terms, keyed for the metrics 
 
 from __future__ import annotations
 
+import torch
 from torch import Tensor
 
 from common import torch_rotations as R
@@ -46,8 +47,18 @@ def world_model_loss(
     return loss, metrics
 
 
-def policy_loss(predicted: BodyState, kin: BodyState, offsets: Tensor,
-                weights: PolicyLossWeights) -> tuple[Tensor, dict[str, Tensor]]:  # fmt: skip
+def step_weights(steps: int, decay: float, like: Tensor) -> Tensor:
+    """Per-step loss weights decay^i (i = 0 .. steps - 1) scaled to mean 1, so that decay 1 is the plain mean.
+
+    ControlVAE (Yao et al. 2022) weights its policy loss by 0.95^i along the rollout: the later frames of a
+    rollout through the world model carry its compounded error, so they pull less. Shape: (steps,).
+    """
+    w = decay ** torch.arange(steps, dtype=like.dtype, device=like.device)
+    return w / w.mean()
+
+
+def policy_loss(predicted: BodyState, kin: BodyState, offsets: Tensor, weights: PolicyLossWeights,
+                step_decay: float = 1.0) -> tuple[Tensor, dict[str, Tensor]]:  # fmt: skip
     """L1 local-space tracking loss of a policy rollout, world-space root terms and the offset regularisers.
 
     Args:
@@ -55,23 +66,34 @@ def policy_loss(predicted: BodyState, kin: BodyState, offsets: Tensor,
         kin: K_1 .. K_L, same shapes.
         offsets: Offsets o before noise. Shape: (B, T, J, 3); the rate term is 0 when T = 1.
         weights: Term weights.
+        step_decay: The tracking and root terms of rollout step i weigh step_decay^i (scaled to mean 1,
+            :func:`step_weights`); 1 is the paper's plain mean. The offset regularisers are not decayed.
 
     Returns:
-        Scalar loss and detached unweighted terms ``losses/policy_<term>`` plus ``losses/policy``.
+        Scalar loss and detached unweighted terms ``losses/policy_<term>`` plus ``losses/policy``. The logged
+        terms are plain means over the window whatever ``step_decay`` is, so that runs stay comparable.
     """
     sim_local = local_features(predicted.pos, predicted.rot, predicted.vel, predicted.angvel)
     kin_local = local_features(kin.pos, kin.rot, kin.vel, kin.angvel)
-    terms = {k: (sim_local[k] - kin_local[k]).abs().mean() for k in POLICY_TERMS}
+    per_step = {k: _per_step_mean(sim_local[k] - kin_local[k]) for k in POLICY_TERMS}
     # World-space root terms (weights 0 in the paper's loss): the only terms that see drift.
-    terms["root_pos"] = (predicted.pos[..., 0, :] - kin.pos[..., 0, :]).abs().mean()
-    terms["root_rot"] = rotation_error(predicted.rot[..., 0, :], kin.rot[..., 0, :]).abs().mean()
+    per_step["root_pos"] = _per_step_mean(predicted.pos[..., 0, :] - kin.pos[..., 0, :])
+    per_step["root_rot"] = _per_step_mean(rotation_error(predicted.rot[..., 0, :], kin.rot[..., 0, :]))
+    time_w = step_weights(predicted.pos.shape[1], step_decay, predicted.pos)
+    terms = {k: v.mean() for k, v in per_step.items()}
+    weighted = {k: (time_w * v).mean() for k, v in per_step.items()}
     terms["offset_l1"] = offsets.abs().mean()
     terms["offset_l2"] = offsets.square().mean()
     # Frame-to-frame change of the offsets (not in the paper): a policy that reacts to every wobble of the
     # simulated velocities makes its PD targets chatter, and the chatter shakes the feet where W is blind.
     rate = offsets[:, 1:] - offsets[:, :-1]
     terms["offset_rate"] = rate.abs().mean() if rate.numel() else offsets.new_zeros(())
-    loss = sum(getattr(weights, k) * v for k, v in terms.items())
+    loss = sum(getattr(weights, k) * weighted.get(k, v) for k, v in terms.items())
     metrics = {f"losses/policy_{k}": v.detach() for k, v in terms.items()}
     metrics["losses/policy"] = loss.detach()
     return loss, metrics
+
+
+def _per_step_mean(error: Tensor) -> Tensor:
+    """Mean |error| per rollout step: (B, T, ...) -> (T,). Every step has as many values, so its mean is the mean."""
+    return error.abs().flatten(2).mean(dim=(0, 2))

@@ -253,6 +253,40 @@ def test_hdf5_round_trip(tmp_path: Path, num_steps: int) -> None:
             np.testing.assert_array_equal(a[key], b[key])
 
 
+@pytest.mark.parametrize("num_steps", [0, 7, 53])
+def test_state_dict_round_trip_continues_exactly(num_steps: int) -> None:
+    buf, _ = _episodic_buffer(num_steps)
+    copy = CyclicBuffer(60, 3, FIELDS)
+    copy.load_state_dict(buf.state_dict())
+    assert (copy.size, copy.total_pushed) == (buf.size, buf.total_pushed)
+    for b in (buf, copy):  # both go on the same way: 4 more steps, with new episode ids
+        for step in range(num_steps, num_steps + 4):
+            _push_step(b, step, [1000 + step] * 3, term=[True] * 3)
+    want, got = buf.latest(buf.size), copy.latest(copy.size)
+    for key in want:
+        np.testing.assert_array_equal(got[key], want[key])
+    a, b = (x.sample_windows(16, 1, np.random.default_rng(2)) for x in (buf, copy))
+    for key in a.keys() - {"row_index"}:
+        np.testing.assert_array_equal(a[key], b[key])
+
+
+def test_load_state_dict_rejects_bad_state_and_keeps_its_rows() -> None:
+    buf = _tiny_buffer()
+    before = buf.latest(buf.size)
+    state = buf.state_dict()
+    bad_shape = {**state, "rows": {**state["rows"], "pos": state["rows"]["pos"][:, :, :1]}}
+    with pytest.raises(ValueError, match=r"field 'pos' expected shape \(5, 3, 2, 3\)"):
+        buf.load_state_dict(bad_shape)
+    missing = {**state, "rows": {k: v for k, v in state["rows"].items() if k != "step"}}
+    with pytest.raises(ValueError, match=r"missing fields \['step'\]"):
+        buf.load_state_dict(missing)
+    with pytest.raises(ValueError, match="do not fit in 2 rows"):
+        CyclicBuffer(6, 3, FIELDS).load_state_dict(state)
+    assert (buf.size, buf.head, buf.total_pushed) == (5, 2, 7)
+    for key, value in buf.latest(buf.size).items():
+        np.testing.assert_array_equal(value, before[key])
+
+
 def test_load_with_smaller_capacity_keeps_newest_rows(tmp_path: Path) -> None:
     buf, _ = _episodic_buffer(53)
     buf.save(tmp_path / "buf.h5")

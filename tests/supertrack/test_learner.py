@@ -15,7 +15,7 @@ from common.config import load_config
 from common.humanoid import Humanoid, hinges_to_joint_rotations
 from common.motion_dataset import load_motions
 from supertrack.config import SuperTrackConfig
-from supertrack.learner import SuperTrackLearner, buffer_fields, buffer_state, load_buffer_state
+from supertrack.learner import SuperTrackLearner, buffer_fields
 from supertrack.state import pack_character_state
 
 DEBUG = str(Path(__file__).resolve().parents[2] / "configs" / "supertrack" / "debug.yaml")
@@ -65,7 +65,7 @@ def test_policy_steps_start_after_the_world_model_only_iterations(learner: Super
 def test_buffer_state_round_trip_samples_the_same_windows(learner: SuperTrackLearner) -> None:
     learner.collect()
     copy = CyclicBuffer(learner.train_buffer.capacity, learner.cfg.train_envs, buffer_fields(15, 12))
-    load_buffer_state(copy, buffer_state(learner.train_buffer))
+    copy.load_state_dict(learner.train_buffer.state_dict())
     a = learner.train_buffer.sample_windows(5, 8, np.random.default_rng(4))
     b = copy.sample_windows(5, 8, np.random.default_rng(4))
     for name in learner.train_buffer.fields:

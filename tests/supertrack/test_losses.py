@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from supertrack.config import PolicyLossWeights, WorldLossWeights
-from supertrack.losses import POLICY_TERMS, policy_loss, rotation_error, world_model_loss
+from supertrack.losses import POLICY_TERMS, policy_loss, rotation_error, step_weights, world_model_loss
 from supertrack.state import BodyState
 
 
@@ -100,3 +100,28 @@ def test_offset_rate_is_the_mean_frame_to_frame_change() -> None:
     assert policy_loss(kin, kin, steady, weights)[1]["losses/policy_offset_rate"].item() == 0.0
     one = policy_loss(_still(bodies=3), _still(bodies=3), offsets[:, :1], weights)[1]
     assert one["losses/policy_offset_rate"].item() == 0.0
+
+
+def test_step_decay_weighs_later_rollout_steps_less_and_logs_the_plain_mean() -> None:
+    kin = _still(time=2, bodies=3)
+    pred = _still(time=2, bodies=3)
+    pred.pos = pred.pos.clone()
+    pred.pos[0, 1, :, 0] += 0.3  # the whole character 0.3 m along x at step 1: only the world root term sees it
+    offsets = torch.zeros(1, 2, 12, 3, dtype=torch.float64)
+    weights = PolicyLossWeights(offset_l1=0.0, offset_l2=0.0, root_pos=1.0)
+    plain, metrics = policy_loss(pred, kin, offsets, weights)
+    # Root position error per step: 0 and 0.3 / 3 = 0.1 (x, y, z components); the plain mean 0.05.
+    assert plain.item() == pytest.approx(0.05)
+    decayed, decayed_metrics = policy_loss(pred, kin, offsets, weights, step_decay=0.5)
+    # Weights 1 and 0.5 scaled to mean 1: 4/3 and 2/3 -> (0 * 4/3 + 0.1 * 2/3) / 2 = 1/30.
+    assert decayed.item() == pytest.approx(1.0 / 30.0)
+    assert decayed_metrics["losses/policy_root_pos"].item() == pytest.approx(0.05)
+    for term in POLICY_TERMS:
+        assert decayed_metrics[f"losses/policy_{term}"].item() == pytest.approx(0.0, abs=1e-12)
+
+
+def test_step_weights_are_powers_scaled_to_mean_one() -> None:
+    w = step_weights(3, 0.95, torch.zeros((), dtype=torch.float64))
+    scale = 3.0 / (1.0 + 0.95 + 0.95**2)
+    torch.testing.assert_close(w, torch.tensor([1.0, 0.95, 0.95**2], dtype=torch.float64) * scale)
+    torch.testing.assert_close(step_weights(4, 1.0, w), torch.ones(4, dtype=torch.float64))

@@ -82,6 +82,12 @@ def test_unknown_config_key_fails_with_its_name(tmp_path: Path) -> None:
         _train(tmp_path / "x", "--set", "policy.lrr=1")
 
 
+def test_out_of_range_step_decay_fails_with_its_name(tmp_path: Path) -> None:
+    with pytest.raises(SystemExit, match=r"policy\.step_decay must be in \(0, 1\], got 1\.5"):
+        _train(tmp_path / "x", "--set", "policy.step_decay=1.5")
+    assert not (tmp_path / "x" / "checkpoints").exists()
+
+
 def test_help_explains_every_option() -> None:
     text = build_parser().format_help()
     for option in ("--config", "--motions", "--device", "--out", "--resume", "--max-minutes", "--seed", "--set"):
