@@ -186,8 +186,12 @@ class Trainer:
 
     def resume(self) -> None:
         state = self.run_dir.load_latest_checkpoint(map_location="cpu")
-        check_compatible(state["meta"], self.meta, self.run_dir.latest_checkpoint_path())
-        self.learner.load_state_dict(state["learner"])
+        path = self.run_dir.latest_checkpoint_path()
+        check_compatible(state["meta"], self.meta, path)
+        try:
+            self.learner.load_state_dict(state["learner"])
+        except (KeyError, ValueError, RuntimeError) as e:  # a damaged or hand-edited checkpoint; the files stay
+            raise SystemExit(f"checkpoint {path}: cannot restore the learner: {e}") from e
         set_rng_state(state["rng"], self.rng)
         self.iteration, self.samples = int(state["iteration"]), int(state["samples"])
         self.train_seconds = float(state["train_seconds"])

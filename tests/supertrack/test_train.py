@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import shutil
 from pathlib import Path
 
 import pytest
@@ -75,6 +76,20 @@ def test_resume_continues_exactly(runs: dict[str, Path]) -> None:
 def test_resume_with_another_config_fails_clearly(runs: dict[str, Path]) -> None:
     with pytest.raises(SystemExit, match=r"(?s)incompatible.*policy\.lr: saved 0.0001, current 0.5"):
         _train(runs["b"], "--resume", "--set", "policy.lr=0.5")
+
+
+def test_resume_from_a_damaged_checkpoint_names_it_and_keeps_it(runs: dict[str, Path], tmp_path: Path) -> None:
+    run = tmp_path / "damaged"
+    shutil.copytree(runs["b"], run)
+    path = sorted((run / "checkpoints").glob("ckpt_*.pt"))[-1]  # the newest numbered one is read first
+    state = torch.load(path, weights_only=False)
+    rows = state["learner"]["train_buffer"]["rows"]
+    rows["sim"] = rows["sim"][:, :, :3]
+    torch.save(state, path)
+    before = path.read_bytes()
+    with pytest.raises(SystemExit, match=rf"(?s)checkpoint .*{path.name}: cannot restore the learner: .*field 'sim'"):
+        _train(run, "--resume")
+    assert path.read_bytes() == before
 
 
 def test_unknown_config_key_fails_with_its_name(tmp_path: Path) -> None:
