@@ -13,6 +13,7 @@ that pose and velocities stay continuous across the loop point instead of jumpin
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
@@ -253,6 +254,25 @@ class MotionLibrary:
     @property
     def num_clips(self) -> int:
         return len(self.clips)
+
+    def clip_weights(self, by_name: Mapping[str, float]) -> np.ndarray | None:
+        """RSI sampling weights per clip from ``{clip name: weight}``; unnamed clips weigh 1. None when empty.
+
+        Raises:
+            ValueError: A name that is not a clip of the library, or a negative weight (named).
+        """
+        if not by_name:
+            return None
+        weights = np.ones(self.num_clips)
+        for name, w in by_name.items():
+            if name not in self.names:
+                raise ValueError(f"clip weight for '{name}': no such clip among the motions ({', '.join(self.names)})")
+            if not w >= 0.0:
+                raise ValueError(f"clip weight for '{name}' must be >= 0, got {w}")
+            weights[self.names.index(name)] = w
+        if weights.sum() <= 0.0:
+            raise ValueError("clip weights are all 0: no clip could start an episode")
+        return weights
 
     def clip_index(self, name: str) -> int:
         try:

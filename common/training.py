@@ -274,14 +274,25 @@ class Trainer:
         )
 
 
-def setup(cls: type, args: argparse.Namespace, learner_name: str) -> tuple[Any, RunDir, Humanoid, MotionLibrary]:
-    """Config, run directory, model and motions for a training command; exits with a clear message on bad input."""
+def setup(
+    cls: type, args: argparse.Namespace, learner_name: str, check: Callable[[Any, MotionLibrary], None] | None = None
+) -> tuple[Any, RunDir, Humanoid, MotionLibrary]:
+    """Config, run directory, model and motions for a training command; exits with a clear message on bad input.
+
+    ``check(cfg, library)`` validates settings that only the motions can (it raises ValueError naming the key); it
+    runs before the run directory is created, so a refused start leaves nothing behind.
+    """
     try:
         cfg = resolve_config(cls, args)
-        out = args.out or f"runs/{learner_name}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
-        run_dir = RunDir(out, resume=args.resume, keep_checkpoints=cfg.train.keep_checkpoints)
         humanoid = Humanoid(cfg.gym.physics)
         library = load_motions(list(cfg.train.motions), humanoid)
+        if check is not None:
+            try:
+                check(cfg, library)
+            except ValueError as e:
+                raise ConfigError(f"{args.config}: {e}") from e
+        out = args.out or f"runs/{learner_name}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
+        run_dir = RunDir(out, resume=args.resume, keep_checkpoints=cfg.train.keep_checkpoints)
     except (ConfigError, RunDirError, MotionFormatError, FileNotFoundError) as e:
         sys.exit(f"error: {e}")
     torch.manual_seed(cfg.train.seed)

@@ -76,7 +76,7 @@ class Run:
                 [float(m[key]) for m in rows])  # fmt: skip
 
 
-def _numbered_checkpoints(path: Path) -> dict[int, Path]:
+def numbered_checkpoints(path: Path) -> dict[int, Path]:
     """{iteration: file} of the ``ckpt_<iter>.pt`` files (the naming of :class:`common.run.RunDir`)."""
     found = {}
     for p in (path / "checkpoints").glob("ckpt_*.pt"):
@@ -87,7 +87,7 @@ def _numbered_checkpoints(path: Path) -> dict[int, Path]:
 
 
 def _checkpoint(path: Path, iteration: int | None) -> Path:
-    numbered = _numbered_checkpoints(path)
+    numbered = numbered_checkpoints(path)
     if iteration is None:
         # The newest numbered file first: a crash between writing it and relinking latest.pt leaves latest behind.
         if numbered:

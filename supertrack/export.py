@@ -21,8 +21,9 @@ from supertrack.models import Policy
 from supertrack.normalizer import Normalizer
 
 
-def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, library: MotionLibrary) -> EvalPolicy:
-    """The deterministic SuperTrack policy stored in ``checkpoint``.
+def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, library: MotionLibrary,
+                     average: bool | None = None) -> EvalPolicy:  # fmt: skip
+    """The deterministic SuperTrack policy stored in ``checkpoint``: the one the trainer evaluated.
 
     Args:
         run_dir: The run directory (its ``config.yaml`` gives the network sizes and alpha).
@@ -30,16 +31,23 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
         humanoid: The model.
         library: The motions to evaluate on (unused: the normaliser comes from the checkpoint, not from the
             evaluation motions, so the policy sees exactly the features it was trained on).
+        average: Which weights: the averaged ones (``policy.average_decay`` > 0), the live ones (False), or
+            None: the averaged ones when the run kept an average (what its trainer evaluated), else the live ones.
 
     Returns:
         A callable from the gym's StepResult to hinge PD targets (N, nu).
 
     Raises:
-        ValueError: If the checkpoint holds no SuperTrack policy or does not fit the config.
+        ValueError: If the checkpoint holds no SuperTrack policy (or no averaged one when ``average`` is True) or
+            does not fit the config.
     """
     del library
     cfg, learner = load_run_checkpoint(SuperTrackConfig, run_dir, checkpoint, "policy")
-    weights = learner["policy"]
+    if average is None:
+        average = "policy_average" in learner
+    if average and "policy_average" not in learner:
+        raise ValueError(f"{checkpoint}: no averaged policy in this checkpoint (its run had policy.average_decay 0)")
+    weights = learner["policy_average"]["module"] if average else learner["policy"]
     # Placeholder statistics of the right size; load_state_dict overwrites them with the trained ones.
     size = int(weights["local_norm.mean"].shape[0])
     norm = Normalizer(np.zeros(size), np.ones(size))

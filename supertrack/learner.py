@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from common.averaging import WeightAverage
 from common.buffer import CyclicBuffer
 from common.evaluate import Policy as EvalPolicy
 from common.gym import StepResult, TrackingGym
@@ -56,6 +57,14 @@ def buffer_fields(num_bodies: int, num_joints: int) -> dict[str, tuple[tuple[int
     }
 
 
+def clip_weights(cfg: SuperTrackConfig, library: MotionLibrary) -> np.ndarray | None:
+    """The gym's RSI weight per clip from ``collect.clip_weights`` (None: uniform); ValueError names the key."""
+    try:
+        return library.clip_weights(cfg.collect.clip_weights)
+    except ValueError as e:
+        raise ValueError(f"collect.clip_weights: {e}") from e
+
+
 class SuperTrackLearner:
     """World model, policy, their optimisers, the gym and the buffers.
 
@@ -84,12 +93,17 @@ class SuperTrackLearner:
         self.world_optimizer = torch.optim.RAdam(self.world_model.parameters(), lr=cfg.world_model.lr)
         self.policy_optimizer = torch.optim.RAdam(self.policy_net.parameters(), lr=cfg.policy.lr)
         self._new_guards()
-        self.gym = TrackingGym(gym_config(cfg), library, humanoid)
+        self.gym = TrackingGym(gym_config(cfg), library, humanoid, clip_weights=clip_weights(cfg, library))
         self._res: StepResult = self.gym.reset()
         fields = buffer_fields(n_bodies, n_joints)
         self.train_buffer = CyclicBuffer(cfg.buffer.capacity, cfg.train_envs, fields)
         self.val_buffer = CyclicBuffer(cfg.buffer.val_capacity, cfg.buffer.val_envs, fields)
         self.actor = Actor(humanoid, self.policy_net, cfg.policy.alpha)
+        # The evaluated policy: the live network, or its weight average when policy.average_decay > 0.
+        self.policy_average = WeightAverage(self.policy_net, cfg.policy.average_decay) if cfg.policy.average_decay \
+            else None
+        self.eval_actor = self.actor if self.policy_average is None else \
+            Actor(humanoid, self.policy_average.module, cfg.policy.alpha)
         self._charts: dict[str, float] = {}
         self.updates = 0
 
@@ -143,7 +157,7 @@ class SuperTrackLearner:
         return metrics
 
     def policy(self) -> EvalPolicy:
-        return self.actor.deterministic
+        return self.eval_actor.deterministic
 
     def diagnostics(self) -> dict[str, float]:
         d = self.cfg.diagnostics
@@ -161,6 +175,7 @@ class SuperTrackLearner:
             "policy_optimizer": self.policy_optimizer.state_dict(), "gym": self.gym.state_dict(),
             "train_buffer": self.train_buffer.state_dict(), "val_buffer": self.val_buffer.state_dict(),
             "updates": self.updates,
+            **({} if self.policy_average is None else {"policy_average": self.policy_average.state_dict()}),
         }  # fmt: skip
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -172,6 +187,8 @@ class SuperTrackLearner:
         self.train_buffer.load_state_dict(state["train_buffer"])
         self.val_buffer.load_state_dict(state["val_buffer"])
         self.updates = int(state["updates"])
+        if self.policy_average is not None:
+            self.policy_average.load_state_dict(state["policy_average"])
         self._new_guards()
 
     def close(self) -> None:
@@ -202,8 +219,11 @@ class SuperTrackLearner:
         rollout = policy_rollout(self.policy_net, self.world_model, sim0, kin_next, kin_rot, noise, c.alpha, self.steps)
         loss, metrics = policy_loss(rollout.predicted, kin_next, rollout.offsets, c.weights, c.step_decay)
         stats = _batch_stats(windows["sim"][:, 0])
-        return self._optimize("policy", loss, metrics, self.policy_net, self.policy_optimizer,
-                              self.policy_guard, c.grad_clip, stats)  # fmt: skip
+        out = self._optimize("policy", loss, metrics, self.policy_net, self.policy_optimizer,
+                             self.policy_guard, c.grad_clip, stats)  # fmt: skip
+        if self.policy_average is not None:
+            self.policy_average.update(self.policy_net)
+        return out
 
     def _optimize(self, name: str, loss: torch.Tensor, metrics: dict[str, torch.Tensor], module: torch.nn.Module,
                   optimizer: torch.optim.Optimizer, guard: NanGuard, grad_clip: float | None,

@@ -15,9 +15,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from common.evaluate import EvalResult
+from common.motion_library import MotionLibrary
 from common.training import Trainer, add_common_arguments, compat_meta, setup
 from supertrack.config import SuperTrackConfig
-from supertrack.learner import SuperTrackLearner
+from supertrack.learner import SuperTrackLearner, clip_weights
 
 DEFAULT_CONFIG = "configs/supertrack/default.yaml"
 
@@ -35,7 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
             "Config sections (configs/supertrack/*.yaml; any key can be overridden with --set section.key=value): "
             "train (budget, seed, device, logging, eval), gym (characters, physics, termination), world_model and "
             "policy (network sizes, batch, window, learning rate, loss weights; policy also sigma and alpha_deg), "
-            "buffer (capacity, held-back characters), collect (gym steps per iteration, warm-up), diagnostics "
+            "buffer (capacity, held-back characters), collect (gym steps per iteration, warm-up, clip_weights: e.g. "
+            "--set 'collect.clip_weights={walk: 10}' oversamples walk), diagnostics "
             "(world-model error horizons). Presets: paper.yaml (the paper's sizes, for a GPU), default.yaml "
             "(a 2-core CPU), debug.yaml (tests)."
         ),
@@ -44,10 +46,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def check_motions(cfg: SuperTrackConfig, library: MotionLibrary) -> None:
+    """The settings only the motions can validate (raises ValueError naming the key)."""
+    clip_weights(cfg, library)
+
+
 def run(argv: Sequence[str] | None = None) -> EvalResult:
     """Parses ``argv``, trains to the configured budget and returns the final evaluation."""
     args = build_parser().parse_args(argv)
-    cfg, run_dir, humanoid, library = setup(SuperTrackConfig, args, "supertrack")
+    cfg, run_dir, humanoid, library = setup(SuperTrackConfig, args, "supertrack", check=check_motions)
     rng = np.random.default_rng(cfg.train.seed)
     learner = SuperTrackLearner(cfg, humanoid, library, rng)
     try:

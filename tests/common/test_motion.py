@@ -170,6 +170,17 @@ def test_sample_starts_respects_weights(lib3: MotionLibrary) -> None:
         lib3.sample_starts(3, rng, weights=np.array([0.0, 0.0, 0.0]))
 
 
+def test_clip_weights_by_name_give_one_weight_per_clip_in_library_order(lib3: MotionLibrary) -> None:
+    assert lib3.clip_weights({}) is None  # uniform
+    np.testing.assert_array_equal(lib3.clip_weights({"kick": 0.0, "walk": 10.0}), [10.0, 1.0, 0.0])
+    with pytest.raises(ValueError, match=r"'wlak': no such clip among the motions \(walk, run, kick\)"):
+        lib3.clip_weights({"wlak": 10.0})
+    with pytest.raises(ValueError, match=r"'run' must be >= 0, got -1"):
+        lib3.clip_weights({"run": -1.0})
+    with pytest.raises(ValueError, match="all 0"):
+        lib3.clip_weights({"walk": 0.0, "run": 0.0, "kick": 0.0})
+
+
 def test_bundled_long_clips_load() -> None:
     clips = read_clip_pack(bundled_motion_dir() / "long_clips.h5")
     assert len(clips) == 9

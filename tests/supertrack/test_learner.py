@@ -87,3 +87,22 @@ def test_nan_loss_restores_the_last_good_weights_and_training_continues(
         assert torch.equal(value, good[name])
     learner.collect()
     assert math.isfinite(learner.update()["losses/world_model"])
+
+
+def test_the_evaluated_policy_is_the_weight_average_of_the_live_one(learner: SuperTrackLearner) -> None:
+    decay = learner.cfg.policy.average_decay
+    assert decay == 0.5 and learner.policy_average is not None
+    expected = {k: v.clone() for k, v in learner.policy_net.named_parameters()}
+    for _ in range(4):
+        learner.collect()
+        learner.update()
+        # The recursion by hand: avg <- decay * avg + (1 - decay) * live, after every policy step (not the W-only one).
+        if learner.updates > learner.cfg.policy.start_iteration:
+            live = dict(learner.policy_net.named_parameters())
+            expected = {k: decay * expected[k] + (1 - decay) * v.detach() for k, v in live.items()}
+    for k, v in learner.policy_average.module.named_parameters():
+        torch.testing.assert_close(v, expected[k])
+    live_out = learner.actor.deterministic(learner._res)
+    avg_out = learner.eval_actor.deterministic(learner._res)
+    assert not np.allclose(live_out, avg_out)
+    np.testing.assert_array_equal(learner.policy()(learner._res), avg_out)

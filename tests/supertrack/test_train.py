@@ -6,10 +6,15 @@ import math
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
+from common.config import load_config
+from common.humanoid import Humanoid
 from common.logs import read_metrics
+from supertrack.config import SuperTrackConfig
+from supertrack.export import load_eval_policy
 from supertrack.train import build_parser, run
 
 DEBUG = str(Path(__file__).resolve().parents[2] / "configs" / "supertrack" / "debug.yaml")
@@ -97,10 +102,42 @@ def test_unknown_config_key_fails_with_its_name(tmp_path: Path) -> None:
         _train(tmp_path / "x", "--set", "policy.lrr=1")
 
 
-def test_out_of_range_step_decay_fails_with_its_name(tmp_path: Path) -> None:
-    with pytest.raises(SystemExit, match=r"policy\.step_decay must be in \(0, 1\], got 1\.5"):
-        _train(tmp_path / "x", "--set", "policy.step_decay=1.5")
+@pytest.mark.parametrize(("key", "value", "message"), [
+    ("policy.step_decay", "1.5", r"policy\.step_decay must be in \(0, 1\], got 1\.5"),
+    ("policy.average_decay", "1.0", r"policy\.average_decay must be in \[0, 1\), got 1\.0"),
+])  # fmt: skip
+def test_an_out_of_range_decay_fails_with_its_name(tmp_path: Path, key: str, value: str, message: str) -> None:
+    with pytest.raises(SystemExit, match=message):
+        _train(tmp_path / "x", "--set", f"{key}={value}")
     assert not (tmp_path / "x" / "checkpoints").exists()
+
+
+def test_clip_weights_reach_the_gym_and_a_wrong_clip_name_fails_with_the_file_and_key(tmp_path: Path) -> None:
+    with pytest.raises(SystemExit, match=r"debug\.yaml: collect\.clip_weights: clip weight for 'wlak': no such clip"):
+        _train(tmp_path / "x", "--motions", "walk", "run", "--set", "collect.clip_weights={wlak: 10}")
+    assert not (tmp_path / "x").exists()  # refused before the run directory is made: a corrected retry can use it
+    weights = "collect.clip_weights={walk: 10}"
+    _train(tmp_path / "y", "--motions", "walk", "run", "--max-iterations", "1", "--set", weights)
+    gym = torch.load(tmp_path / "y" / "checkpoints" / "latest.pt", weights_only=False)["learner"]["gym"]
+    np.testing.assert_array_equal(gym["clip_weights"], [10.0, 1.0])
+
+
+def test_export_loads_the_averaged_policy_that_the_trainer_evaluated(runs: dict[str, Path]) -> None:
+    checkpoint = runs["a"] / "checkpoints" / "latest.pt"
+    saved = torch.load(checkpoint, weights_only=False)["learner"]
+    humanoid = Humanoid(load_config(SuperTrackConfig, runs["a"] / "config.yaml").gym.physics)
+    for average, weights in ((None, saved["policy_average"]["module"]), (True, saved["policy_average"]["module"]),
+                             (False, saved["policy"])):  # fmt: skip
+        net = load_eval_policy(runs["a"], checkpoint, humanoid, None, average=average).__self__.policy
+        for k, v in net.state_dict().items():
+            torch.testing.assert_close(v, weights[k])
+    live, averaged = saved["policy"], saved["policy_average"]["module"]
+    assert any(not torch.equal(live[k], averaged[k]) for k in live)  # the two choices are different weights
+    del saved["policy_average"]
+    stripped = runs["a"] / "no_average.pt"
+    torch.save({"learner": saved}, stripped)
+    with pytest.raises(ValueError, match=r"no_average\.pt: no averaged policy in this checkpoint"):
+        load_eval_policy(runs["a"], stripped, humanoid, None, average=True)
 
 
 def test_help_explains_every_option() -> None:
