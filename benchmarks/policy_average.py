@@ -22,7 +22,8 @@ import torch
 from common.evaluate import evaluate
 from common.humanoid import Humanoid
 from common.motion_dataset import load_motions
-from report.runs import load_run, numbered_checkpoints
+from common.run import numbered_checkpoints
+from report.runs import load_run
 from supertrack.export import load_eval_policy
 
 
@@ -42,7 +43,7 @@ def main() -> None:
     protocol = replace(protocol, threads=args.threads, starts_per_clip=args.starts or protocol.starts_per_clip)
     humanoid = Humanoid(run.physics())
     library = load_motions(run.motions, humanoid)
-    checkpoints = numbered_checkpoints(run.path)
+    checkpoints = dict(numbered_checkpoints(run.path / "checkpoints"))
     if not checkpoints:
         raise SystemExit(f"{args.run}: no numbered checkpoints")
     print(f"{run.path}: {len(checkpoints)} checkpoints, {protocol.starts_per_clip} starts per clip, "

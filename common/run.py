@@ -45,6 +45,43 @@ class RunDirError(RuntimeError):
     """A run directory cannot be used as asked (existing run without --resume, nothing to resume)."""
 
 
+def numbered_checkpoints(checkpoint_dir: Path) -> list[tuple[int, Path]]:
+    """(iteration, path) of the ``ckpt_<iteration>.pt`` files in ``checkpoint_dir``, oldest first."""
+    if not checkpoint_dir.is_dir():
+        return []
+    return sorted((int(m.group(1)), p) for p in checkpoint_dir.iterdir() if (m := _CKPT_RE.match(p.name)))
+
+
+def newest_checkpoint(checkpoint_dir: Path) -> Path | None:
+    """The newest numbered checkpoint in ``checkpoint_dir``, else its ``latest.pt``, else None.
+
+    Numbered files come first because a crash between writing one and relinking ``latest.pt`` leaves ``latest.pt``
+    one checkpoint behind.
+    """
+    numbered = numbered_checkpoints(checkpoint_dir)
+    if numbered:
+        return numbered[-1][1]
+    latest = checkpoint_dir / "latest.pt"
+    return latest if latest.is_file() else None
+
+
+def checkpoint_file(path: str | Path) -> Path:
+    """A checkpoint file given as itself or as the run directory holding it (then its newest checkpoint).
+
+    Raises:
+        RunDirError: Naming ``path`` if it is neither a file nor a run directory with a checkpoint.
+    """
+    path = Path(path)
+    if path.is_file():
+        return path
+    if not path.is_dir():
+        raise RunDirError(f"{path}: no such checkpoint file or run directory")
+    found = newest_checkpoint(path / "checkpoints")
+    if found is None:
+        raise RunDirError(f"{path}: no checkpoint in {path / 'checkpoints'}")
+    return found
+
+
 class RunDir:
     """A run's output directory: config, run info, metrics and checkpoints.
 
@@ -118,21 +155,11 @@ class RunDir:
 
     def numbered_checkpoints(self) -> list[tuple[int, Path]]:
         """(iteration, path) of the numbered checkpoints, oldest first."""
-        if not self.checkpoint_dir.is_dir():
-            return []
-        found = [(int(m.group(1)), p) for p in self.checkpoint_dir.iterdir() if (m := _CKPT_RE.match(p.name))]
-        return sorted(found)
+        return numbered_checkpoints(self.checkpoint_dir)
 
     def latest_checkpoint_path(self) -> Path | None:
-        """The newest numbered checkpoint, else ``latest.pt``, else None.
-
-        Numbered files come first because a crash between writing one and relinking ``latest.pt`` leaves
-        ``latest.pt`` one checkpoint behind.
-        """
-        numbered = self.numbered_checkpoints()
-        if numbered:
-            return numbered[-1][1]
-        return self.latest_path if self.latest_path.is_file() else None
+        """The newest numbered checkpoint, else ``latest.pt``, else None (see :func:`newest_checkpoint`)."""
+        return newest_checkpoint(self.checkpoint_dir)
 
     def save_checkpoint(self, state: Mapping[str, Any], iteration: int) -> Path:
         """Save ``state`` as checkpoint ``iteration``, update ``latest.pt`` and prune old checkpoints.

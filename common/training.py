@@ -275,12 +275,17 @@ class Trainer:
 
 
 def setup(
-    cls: type, args: argparse.Namespace, learner_name: str, check: Callable[[Any, MotionLibrary], None] | None = None
+    cls: type,
+    args: argparse.Namespace,
+    learner_name: str,
+    check: Callable[[Any, Humanoid, MotionLibrary], None] | None = None,
+    info: Mapping[str, Any] | None = None,
 ) -> tuple[Any, RunDir, Humanoid, MotionLibrary]:
     """Config, run directory, model and motions for a training command; exits with a clear message on bad input.
 
-    ``check(cfg, library)`` validates settings that only the motions can (it raises ValueError naming the key); it
-    runs before the run directory is created, so a refused start leaves nothing behind.
+    ``check(cfg, humanoid, library)`` validates what only the model and motions can (it raises ValueError naming the
+    key); it runs before the run directory is created, so a refused start leaves nothing behind. ``info`` is added
+    to run_info.json.
     """
     try:
         cfg = resolve_config(cls, args)
@@ -288,7 +293,7 @@ def setup(
         library = load_motions(list(cfg.train.motions), humanoid)
         if check is not None:
             try:
-                check(cfg, library)
+                check(cfg, humanoid, library)
             except ValueError as e:
                 raise ConfigError(f"{args.config}: {e}") from e
         out = args.out or f"runs/{learner_name}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
@@ -299,7 +304,8 @@ def setup(
     torch.set_num_threads(max(1, cfg.train.torch_threads))
     if not args.resume:
         run_dir.save_config(cfg)
-    run_dir.write_run_info({"learner": learner_name, "seed": cfg.train.seed, "motions": list(library.names)})
+    run_dir.write_run_info({"learner": learner_name, "seed": cfg.train.seed, "motions": list(library.names),
+                            **(info or {})})  # fmt: skip
     return cfg, run_dir, humanoid, library
 
 

@@ -76,26 +76,15 @@ class Run:
                 [float(m[key]) for m in rows])  # fmt: skip
 
 
-def numbered_checkpoints(path: Path) -> dict[int, Path]:
-    """{iteration: file} of the ``ckpt_<iter>.pt`` files (the naming of :class:`common.run.RunDir`)."""
-    found = {}
-    for p in (path / "checkpoints").glob("ckpt_*.pt"):
-        digits = p.stem.removeprefix("ckpt_")
-        if digits.isdigit():
-            found[int(digits)] = p
-    return found
-
-
 def _checkpoint(path: Path, iteration: int | None) -> Path:
-    numbered = numbered_checkpoints(path)
+    from common.run import newest_checkpoint, numbered_checkpoints  # imports torch: only once a checkpoint is needed
+
     if iteration is None:
-        # The newest numbered file first: a crash between writing it and relinking latest.pt leaves latest behind.
-        if numbered:
-            return numbered[max(numbered)]
-        latest = path / "checkpoints" / "latest.pt"
-        if latest.is_file():
-            return latest
-        raise ReportError(f"{path}: unfinished run: no checkpoint in {path / 'checkpoints'}")
+        found = newest_checkpoint(path / "checkpoints")
+        if found is None:
+            raise ReportError(f"{path}: unfinished run: no checkpoint in {path / 'checkpoints'}")
+        return found
+    numbered = dict(numbered_checkpoints(path / "checkpoints"))
     if iteration not in numbered:
         have = ", ".join(str(i) for i in sorted(numbered)) or "none"
         raise ReportError(f"{path}: no checkpoint of iteration {iteration} (numbered checkpoints: {have})")

@@ -191,6 +191,28 @@ class SuperTrackLearner:
             self.policy_average.load_state_dict(state["policy_average"])
         self._new_guards()
 
+    def init_networks(self, learner_state: dict[str, Any]) -> None:
+        """Starts from another run's world model and policy (with the normalisers they were trained with).
+
+        Optimisers, buffers, gym and the iteration count stay fresh: this is fine-tuning (e.g. a walk policy as the
+        start for run), not a resume. The weight average, if any, restarts from the loaded policy.
+
+        Raises:
+            ValueError: If the state lacks the networks or their sizes differ from this config's.
+        """
+        missing = [k for k in ("world_model", "policy") if k not in learner_state]
+        if missing:
+            raise ValueError(f"no {' or '.join(missing)} in the learner state (not a SuperTrack checkpoint)")
+        try:
+            self.world_model.load_state_dict(learner_state["world_model"])
+            self.policy_net.load_state_dict(learner_state["policy"])
+        except RuntimeError as e:  # the message lists every mismatched tensor
+            raise ValueError(f"the networks do not fit this config (world_model.hidden / policy.hidden?): {e}") from e
+        if self.policy_average is not None:
+            self.policy_average = WeightAverage(self.policy_net, self.cfg.policy.average_decay)
+            self.eval_actor = Actor(self.humanoid, self.policy_average.module, self.cfg.policy.alpha)
+        self._new_guards()
+
     def close(self) -> None:
         self.gym.close()
 

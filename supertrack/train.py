@@ -9,13 +9,20 @@ Example::
 from __future__ import annotations
 
 import argparse
+import pickle
 import sys
 from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
+import torch
 
+from common.config import to_dict
 from common.evaluate import EvalResult
+from common.humanoid import Humanoid
 from common.motion_library import MotionLibrary
+from common.run import RunDirError, checkpoint_file
 from common.training import Trainer, add_common_arguments, compat_meta, setup
 from supertrack.config import SuperTrackConfig
 from supertrack.learner import SuperTrackLearner, clip_weights
@@ -43,21 +50,71 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     add_common_arguments(parser, DEFAULT_CONFIG)
+    parser.add_argument("--init-from", default=None, metavar="RUN_DIR|CHECKPOINT",
+                        help="start the world model and policy (with the normalisers they were trained with) from "
+                             "another SuperTrack run's newest checkpoint, or from a checkpoint file; optimisers, "
+                             "buffer, gym and counters start fresh: fine-tuning, e.g. a walk run as the start for "
+                             "run. The network sizes must match. Recorded in run_info.json; not with "
+                             "--resume")  # fmt: skip
     return parser
 
 
-def check_motions(cfg: SuperTrackConfig, library: MotionLibrary) -> None:
+def _read_init(path: str) -> tuple[Path, dict[str, Any]]:
+    """The ``--init-from`` checkpoint and its contents; exits naming the file if it is not a SuperTrack checkpoint."""
+    try:
+        source = checkpoint_file(path)
+        state = torch.load(source, map_location="cpu", weights_only=False)
+    except (RunDirError, OSError, RuntimeError, pickle.UnpicklingError) as e:
+        sys.exit(f"error: --init-from {path}: {e}")
+    meta = state.get("meta") if isinstance(state, dict) else None
+    if not isinstance(meta, dict) or meta.get("learner") != "supertrack" or "learner" not in state:
+        learner = meta.get("learner") if isinstance(meta, dict) else None
+        sys.exit(f"error: --init-from {source}: not a SuperTrack checkpoint (learner: {learner!r})")
+    return source, state
+
+
+def _check_init_fits(source: Path, state: dict[str, Any], cfg: SuperTrackConfig, humanoid: Humanoid) -> None:
+    """The ``--init-from`` networks fit this run: same character and network sizes (ValueError naming both)."""
+    meta = state["meta"]
+    if list(meta.get("bodies", [])) != list(humanoid.body_names):
+        raise ValueError(f"--init-from {source}: another character (bodies {meta.get('bodies')})")
+    here = to_dict(cfg)
+    for section, key in (("world_model", "hidden"), ("policy", "hidden"), ("policy", "root_offset")):
+        theirs = meta.get("config", {}).get(section, {}).get(key)
+        if theirs != here[section][key]:
+            raise ValueError(f"--init-from {source}: {section}.{key} is {theirs} there and {here[section][key]} here; "
+                             "the networks must have the same sizes")  # fmt: skip
+
+
+def check_motions(cfg: SuperTrackConfig, humanoid: Humanoid, library: MotionLibrary) -> None:
     """The settings only the motions can validate (raises ValueError naming the key)."""
+    del humanoid
     clip_weights(cfg, library)
 
 
 def run(argv: Sequence[str] | None = None) -> EvalResult:
     """Parses ``argv``, trains to the configured budget and returns the final evaluation."""
     args = build_parser().parse_args(argv)
-    cfg, run_dir, humanoid, library = setup(SuperTrackConfig, args, "supertrack", check=check_motions)
+    init = None
+    if args.init_from is not None:
+        if args.resume:
+            sys.exit("error: --init-from starts a new run from another run's networks; --resume continues this run's "
+                     "own checkpoint: use one or the other")  # fmt: skip
+        init = _read_init(args.init_from)
+
+    def check(cfg: SuperTrackConfig, humanoid: Humanoid, library: MotionLibrary) -> None:
+        check_motions(cfg, humanoid, library)
+        if init is not None:
+            _check_init_fits(*init, cfg, humanoid)
+
+    extra = {} if init is None else {"init_from": str(init[0]), "init_iteration": init[1].get("iteration")}
+    cfg, run_dir, humanoid, library = setup(SuperTrackConfig, args, "supertrack", check=check, info=extra)
     rng = np.random.default_rng(cfg.train.seed)
     learner = SuperTrackLearner(cfg, humanoid, library, rng)
     try:
+        if init is not None:
+            learner.init_networks(init[1]["learner"])
+            print(f"networks from {init[0]} (iteration {init[1].get('iteration')}, {init[1].get('samples')} samples)")
         trainer = Trainer(learner, cfg.train, run_dir, library, humanoid, compat_meta(cfg, humanoid, "supertrack"),
                           "supertrack", rng)  # fmt: skip
         if args.resume:

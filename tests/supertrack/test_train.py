@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 from pathlib import Path
@@ -120,6 +121,43 @@ def test_clip_weights_reach_the_gym_and_a_wrong_clip_name_fails_with_the_file_an
     _train(tmp_path / "y", "--motions", "walk", "run", "--max-iterations", "1", "--set", weights)
     gym = torch.load(tmp_path / "y" / "checkpoints" / "latest.pt", weights_only=False)["learner"]["gym"]
     np.testing.assert_array_equal(gym["clip_weights"], [10.0, 1.0])
+
+
+def test_init_from_starts_a_new_run_from_another_runs_networks(runs: dict[str, Path], tmp_path: Path) -> None:
+    source = torch.load(runs["a"] / "checkpoints" / "latest.pt", weights_only=False)
+    _train(tmp_path / "ft", "--motions", "run", "--init-from", str(runs["a"]), "--max-iterations", "2",
+           "--set", "world_model.lr=0", "--set", "policy.lr=0")  # fmt: skip
+    info = json.loads((tmp_path / "ft" / "run_info.json").read_text())
+    assert info["init_from"].endswith("ckpt_00000006.pt") and info["init_iteration"] == 6
+    tuned = torch.load(tmp_path / "ft" / "checkpoints" / "latest.pt", weights_only=False)
+    assert tuned["iteration"] == 2  # a new run: its own counters
+    for net in ("world_model", "policy"):  # learning rate 0: the weights and normalisers are the source's, unchanged
+        for k, v in source["learner"][net].items():
+            torch.testing.assert_close(tuned["learner"][net][k], v)
+    assert tuned["learner"]["policy_average"]["updates"] == 1  # restarted from the loaded policy (1 policy step)
+    for k, v in source["learner"]["policy"].items():
+        torch.testing.assert_close(tuned["learner"]["policy_average"]["module"][k], v)
+
+
+@pytest.mark.parametrize(("extra", "message"), [
+    (("--set", "policy.hidden=[16]"), r"policy\.hidden is \[32, 32\] there and \[16\] here"),
+    (("--resume",), r"use one or the other"),
+])  # fmt: skip
+def test_init_from_a_checkpoint_that_does_not_fit_is_refused_before_anything_is_written(
+    runs: dict[str, Path], tmp_path: Path, extra: tuple[str, ...], message: str
+) -> None:
+    with pytest.raises(SystemExit, match=message):
+        _train(tmp_path / "ft", "--init-from", str(runs["a"] / "checkpoints" / "latest.pt"), *extra)
+    assert not (tmp_path / "ft").exists()
+
+
+def test_init_from_something_that_is_not_a_supertrack_checkpoint_names_it(tmp_path: Path) -> None:
+    with pytest.raises(SystemExit, match=r"--init-from .*nowhere: no such checkpoint file or run directory"):
+        _train(tmp_path / "ft", "--init-from", str(tmp_path / "nowhere"))
+    torch.save({"meta": {"learner": "ppo"}, "learner": {}}, tmp_path / "ppo.pt")
+    with pytest.raises(SystemExit, match=r"ppo\.pt: not a SuperTrack checkpoint \(learner: 'ppo'\)"):
+        _train(tmp_path / "ft", "--init-from", str(tmp_path / "ppo.pt"))
+    assert not (tmp_path / "ft").exists()
 
 
 def test_export_loads_the_averaged_policy_that_the_trainer_evaluated(runs: dict[str, Path]) -> None:
