@@ -27,6 +27,7 @@ from common.config import load_config  # noqa: E402
 from common.evaluate import reference_policy  # noqa: E402
 from common.humanoid import Humanoid  # noqa: E402
 from common.motion_dataset import load_motions  # noqa: E402
+from common.run import RunDirError, checkpoint_file  # noqa: E402
 from supertrack.config import SuperTrackConfig  # noqa: E402
 from supertrack.learner import SuperTrackLearner  # noqa: E402
 from supertrack.rollout import world_model_rollout  # noqa: E402
@@ -45,7 +46,10 @@ def main() -> None:
         raise SystemExit(f"{run}: not a run directory (no config.yaml)")
     overrides = ["world_model.compile=false", "policy.compile=false"]
     cfg = load_config(SuperTrackConfig, run / "config.yaml", overrides)
-    checkpoint = Path(args.checkpoint) if args.checkpoint else run / "checkpoints" / "latest.pt"
+    try:
+        checkpoint = checkpoint_file(args.checkpoint or run)
+    except RunDirError as e:
+        raise SystemExit(str(e)) from e
     humanoid = Humanoid(cfg.gym.physics)
     library = load_motions(list(cfg.train.motions), humanoid)
     learner = SuperTrackLearner(cfg, humanoid, library, np.random.default_rng(0))
