@@ -86,12 +86,6 @@ def _check_init_fits(source: Path, state: dict[str, Any], cfg: SuperTrackConfig,
                              "the networks must have the same sizes")  # fmt: skip
 
 
-def check_motions(cfg: SuperTrackConfig, humanoid: Humanoid, library: MotionLibrary) -> None:
-    """The settings only the motions can validate (raises ValueError naming the key)."""
-    del humanoid
-    clip_weights(cfg, library)
-
-
 def run(argv: Sequence[str] | None = None) -> EvalResult:
     """Parses ``argv``, trains to the configured budget and returns the final evaluation."""
     args = build_parser().parse_args(argv)
@@ -103,7 +97,8 @@ def run(argv: Sequence[str] | None = None) -> EvalResult:
         init = _read_init(args.init_from)
 
     def check(cfg: SuperTrackConfig, humanoid: Humanoid, library: MotionLibrary) -> None:
-        check_motions(cfg, humanoid, library)
+        """What only the model and motions can validate, before the run directory is made."""
+        clip_weights(cfg, library)
         if init is not None:
             _check_init_fits(*init, cfg, humanoid)
 
