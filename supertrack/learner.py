@@ -208,9 +208,9 @@ class SuperTrackLearner:
             self.policy_net.load_state_dict(learner_state["policy"])
         except RuntimeError as e:  # the message lists every mismatched tensor
             raise ValueError(f"the networks do not fit this config (world_model.hidden / policy.hidden?): {e}") from e
-        if self.policy_average is not None:
-            self.policy_average = WeightAverage(self.policy_net, self.cfg.policy.average_decay)
-            self.eval_actor = Actor(self.humanoid, self.policy_average.module, self.cfg.policy.alpha)
+        if self.policy_average is not None:  # the average restarts from the loaded policy
+            self.policy_average.module.load_state_dict(self.policy_net.state_dict())
+            self.policy_average.updates = 0
         self._new_guards()
 
     def close(self) -> None:
