@@ -52,18 +52,23 @@ class PhysicsConfig:
         substeps: Physics steps per control step; the physics timestep is 1 / (control_hz * substeps).
         solver_iterations: Constraint solver iterations (MuJoCo's default is 100).
         ls_iterations: Line-search iterations of the Newton solver.
+        armature: Rotor inertia (kg m^2) added to every hinge; None keeps the MJCF's value. Too little lets the
+            stiff PD servos chatter at the physics rate (see ``common/assets/humanoid3d.xml``).
     """
 
     control_hz: float = 60.0
     substeps: int = 8
     solver_iterations: int = 100
     ls_iterations: int = 50
+    armature: float | None = None
 
     def __post_init__(self) -> None:
         if self.control_hz <= 0:
             raise ValueError(f"physics.control_hz must be positive, got {self.control_hz}")
         if self.substeps < 1:
             raise ValueError(f"physics.substeps must be >= 1, got {self.substeps}")
+        if self.armature is not None and not self.armature >= 0:
+            raise ValueError(f"physics.armature must be >= 0 (kg m^2), got {self.armature}")
 
     @property
     def control_dt(self) -> float:
@@ -113,6 +118,8 @@ class Humanoid:
         self.model.opt.iterations = self.physics.solver_iterations
         self.model.opt.ls_iterations = self.physics.ls_iterations
         m = self.model
+        if self.physics.armature is not None:
+            m.dof_armature[m.jnt_dofadr[m.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]] = self.physics.armature
         # Body 0 is MuJoCo's world body; the character's bodies follow in depth-first order.
         self.body_names: tuple[str, ...] = tuple(
             mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, i) for i in range(1, m.nbody)
