@@ -24,6 +24,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from common import torch_rotations as R  # noqa: E402
 from common.config import load_config  # noqa: E402
 from common.humanoid import Humanoid  # noqa: E402
 from common.motion_dataset import load_motions  # noqa: E402
@@ -53,6 +54,18 @@ def one_frame_errors(learner: SuperTrackLearner, windows: dict[str, np.ndarray],
     up = (nxt.pos[:, head, 2] - kin_next.time(0).pos[:, head, 2]).abs().numpy() < HEAD_RULE_M
     return {"w_vel": err(pred.vel, nxt.vel), "c_vel": err(now.vel, nxt.vel), "w_ang": err(pred.angvel, nxt.angvel),
             "c_ang": err(now.angvel, nxt.angvel), "up": up}  # fmt: skip
+
+
+def acceleration_spread(learner: SuperTrackLearner, windows: dict[str, np.ndarray]) -> str:
+    """How far the simulated accelerations lie outside W's output normaliser (taken from the clips)."""
+    sim = BodyState.unpack(torch.as_tensor(windows["sim"]))
+    now, nxt = sim.time(0), sim.time(1)
+    dt = learner.world_model.dt
+    acc = torch.cat([(nxt.vel - now.vel) / dt, (nxt.angvel - now.angvel) / dt], dim=-2)  # (B, 2N, 3), world
+    local = R.quat_rotate_inv(now.rot[:, :1], acc)  # root frame of frame i, as W predicts them
+    z = learner.world_model.accel_norm.normalize(local.reshape(len(local), -1)).abs()
+    p99, beyond = float(z.quantile(0.99)), float((z > 10).float().mean())
+    return f"|normalised acceleration| of the held-back frames: 99th percentile {p99:.1f} std, {beyond:.1%} beyond 10"
 
 
 def summary_line(e: dict[str, np.ndarray], names: tuple[str, ...]) -> str:
@@ -95,6 +108,7 @@ def main() -> None:
         windows = learner.val_buffer.sample_windows(args.windows, 2, np.random.default_rng(1))
         head = humanoid.head_index
         e = one_frame_errors(learner, windows, head)
+        print(acceleration_spread(learner, windows))
         print(f"update 0: {summary_line(e, humanoid.body_names)}", flush=True)
         t0 = time.perf_counter()
         for u in range(1, args.updates + 1):

@@ -1,11 +1,21 @@
 """The one evaluator both learners use: a policy run deterministically over every clip of a motion set.
 
 Every clip is played from ``starts_per_clip`` fixed start frames (evenly spaced, the first at t = 0), all
-episodes in parallel in one gym with a fixed seed and no autoreset. An episode lasts ``max_frames`` steps, or until
-a one-shot clip ends, or until the evaluation's termination rule fires (by default SuperTrack's: head height off
-by more than 25 cm after 48 frames). Each frame is scored with :mod:`common.metrics` on the simulated state against
-the reference at the same time; per-clip numbers average the frames of that clip's episodes, and the overall
-numbers average the clips (each clip counts once, whatever its length).
+episodes in parallel in one gym with a fixed seed and no autoreset. Each frame is scored with :mod:`common.metrics`
+on the simulated state against the reference at the same time; per-clip numbers average the frames of that clip's
+episodes, and the overall numbers average the clips (each clip counts once, whatever its length).
+
+**The protocol (full horizon, the default).** Every episode plays its whole horizon: ``max_frames`` steps (512), or
+to a one-shot clip's last frame. The failure rule (by default SuperTrack's: head height off by more than 25 cm after
+48 frames) does not end an episode: it marks it failed at the frame it first fires, and the character plays on, so
+a policy that falls is charged for every frame it spends fallen while the reference moves on; failing early can
+never lower its error. A simulation that blows up is scored from then on as if frozen in its last state before the
+blow-up. Survival is the share of episodes no rule failed; episode length / max is the share of the horizon played
+before the first failure; success (UHC/PHC) needs no failure and a mean body error never above 0.5 m. Beside the
+full-horizon errors, ``mpjpe_g_succ`` / ``mpjpe_l_succ`` are the field's success-only figures (PHC, UHC): the error
+over the episodes that succeeded, to be read with the success rate (NaN for a clip with none; the overall figure
+averages the clips that have one). ``full_horizon=False`` is the earlier protocol: an episode ends at its first
+failure and only the frames before it are scored (a method can look better there by failing sooner).
 
 A policy is any callable from the gym's :class:`~common.gym.StepResult` to PD targets (N, nu); learners pass their
 deterministic (mean, no noise) policy.
@@ -21,7 +31,7 @@ import numpy as np
 from common import metrics as M
 from common.gym import GymConfig, StepResult, TrackingGym
 from common.humanoid import Humanoid
-from common.motion_library import MotionLibrary
+from common.motion_library import CharacterState, MotionLibrary
 from common.rewards import TerminationConfig
 
 Policy = Callable[[StepResult], np.ndarray]
@@ -38,7 +48,9 @@ class EvalConfig:
         max_frames: Steps per episode (SuperTrack's 512); one-shot clips end earlier at their last frame.
         seed: Seed of the evaluation gym.
         threads: MuJoCo rollout threads.
-        termination: The rule that ends a failed episode.
+        termination: The rule that marks an episode failed.
+        full_horizon: Score every episode over its whole horizon, failed or not (see the module docstring); False
+            ends an episode at its first failure and scores only the frames before it.
     """
 
     starts_per_clip: int = 4
@@ -48,6 +60,7 @@ class EvalConfig:
     termination: TerminationConfig = field(
         default_factory=lambda: TerminationConfig(max_episode_frames=None, grace_frames=48, head_height_error=0.25)
     )
+    full_horizon: bool = True
 
     def __post_init__(self) -> None:
         if self.starts_per_clip < 1 or self.max_frames < 1:
@@ -62,7 +75,7 @@ class EvalResult:
         clips: Clip names, in library order.
         per_clip: {metric: (C,)} for every metric in :data:`common.metrics.METRIC_NAMES`.
         overall: {metric: mean over clips}.
-        episode_length: Steps played per episode. Shape: (C, starts_per_clip).
+        episode_length: Steps played per episode before its first failure. Shape: (C, starts_per_clip).
         episode_max: Steps each episode could have played. Shape: (C, starts_per_clip).
         frames: Steps simulated per character (the longest episode).
     """
@@ -121,33 +134,29 @@ def evaluate(
         per_frame = {key: np.zeros((horizon, n)) for key in FRAME_METRICS}
         body_err = np.zeros((horizon, n))
         valid = np.zeros((horizon, n), dtype=bool)
-        alive = np.ones(n, dtype=bool)
-        terminated = np.zeros(n, dtype=bool)
-        hinge_dof = humanoid.hinge_dof
-        root = humanoid.root_index
+        alive = np.ones(n, dtype=bool)  # no failure yet
+        frozen = np.zeros(n, dtype=bool)  # blew up: scored in its last state before that from then on
+        held = result.sim
+        length = np.zeros(n, dtype=np.int64)
         for t in range(horizon):
+            before = result.sim
             result = gym.step(policy(result), autoreset=False)
-            sim, ref = result.final_sim, result.final_ref
-            valid[t] = alive
-            per_frame["mpjpe_g"][t] = M.mpjpe_global_mm(sim.body_pos, ref.body_pos)
-            per_frame["mpjpe_l"][t] = M.mpjpe_local_mm(sim.body_pos, ref.body_pos, root_index=root)
-            per_frame["root_pos_err"][t] = M.root_pos_error_m(sim.body_pos[:, root], ref.body_pos[:, root])
-            per_frame["root_rot_err"][t] = M.root_rot_error_rad(sim.body_rot[:, root], ref.body_rot[:, root])
-            per_frame["body_rot_err"][t] = M.body_rot_error_rad(sim.body_rot, ref.body_rot)
-            per_frame["joint_vel_err"][t] = M.joint_vel_error(sim.qvel[:, hinge_dof], ref.qvel[:, hinge_dof])
-            per_frame["root_vel_err"][t] = M.root_lin_vel_error(sim.body_linvel[:, root], ref.body_linvel[:, root])
-            per_frame["root_ang_vel_err"][t] = M.root_ang_vel_error(sim.body_angvel[:, root],
-                                                                     ref.body_angvel[:, root])  # fmt: skip
-            body_err[t] = M.mean_body_pos_error_m(sim.body_pos, ref.body_pos)
-            terminated |= alive & result.terminated
-            alive &= ~result.terminated & (t + 1 < episode_max)
-            if not alive.any():
+            newly = result.diverged & ~frozen
+            held = _with_rows(held, newly, before)
+            frozen |= newly
+            sim, ref = _with_rows(result.final_sim, frozen, held), result.final_ref
+            in_horizon = t < episode_max
+            valid[t] = in_horizon & (alive | config.full_horizon)
+            length += alive & in_horizon
+            _score(per_frame, body_err, t, sim, ref, humanoid)
+            alive &= ~(result.terminated & in_horizon)
+            if not config.full_horizon and not (alive & (t + 1 < episode_max)).any():
                 break
         played = int(t + 1)
     finally:
         gym.close()
     valid, body_err = valid[:played], body_err[:played]
-    length = valid.sum(axis=0)
+    terminated = ~alive
     succeeded = M.success(body_err.T, valid=valid.T, terminated=terminated)
     per_clip: dict[str, np.ndarray] = {key: np.zeros(nclip) for key in M.METRIC_NAMES}
     for c in range(nclip):
@@ -155,14 +164,48 @@ def evaluate(
         means = M.summarise({key: v[:played, eps] for key, v in per_frame.items()}, valid[:, eps])
         for key, value in means.items():
             per_clip[key][c] = value
+        ok = eps & succeeded
+        only = M.summarise({key: per_frame[key][:played, ok] for key in ("mpjpe_g", "mpjpe_l")}, valid[:, ok])
+        per_clip["mpjpe_g_succ"][c], per_clip["mpjpe_l_succ"][c] = only["mpjpe_g"], only["mpjpe_l"]
         per_clip["success"][c] = succeeded[eps].mean()
         per_clip["survival"][c] = (~terminated[eps]).mean()
         per_clip["episode_len_ratio"][c] = np.mean(length[eps] / episode_max[eps])
-    overall = {key: float(np.mean(v)) for key, v in per_clip.items()}
+    overall = {key: _mean_over_clips(v) if key.endswith("_succ") else float(np.mean(v)) for key, v in per_clip.items()}
     return EvalResult(
         clips=list(library.names), per_clip=per_clip, overall=overall,
         episode_length=length.reshape(nclip, k), episode_max=episode_max.reshape(nclip, k), frames=played,
     )  # fmt: skip
+
+
+def _with_rows(state: CharacterState, rows: np.ndarray, source: CharacterState) -> CharacterState:
+    """``state`` with the characters where ``rows`` is True taken from ``source`` (a copy when any is)."""
+    if not rows.any():
+        return state
+    out = CharacterState(**{k: v.copy() for k, v in vars(state).items()})
+    for k, v in vars(source).items():
+        getattr(out, k)[rows] = v[rows]
+    return out
+
+
+def _score(per_frame: dict[str, np.ndarray], body_err: np.ndarray, t: int, sim: CharacterState,
+           ref: CharacterState, humanoid: Humanoid) -> None:  # fmt: skip
+    """Writes frame ``t``'s metrics of every character into ``per_frame[key][t]`` and ``body_err[t]``."""
+    root, hinge_dof = humanoid.root_index, humanoid.hinge_dof
+    per_frame["mpjpe_g"][t] = M.mpjpe_global_mm(sim.body_pos, ref.body_pos)
+    per_frame["mpjpe_l"][t] = M.mpjpe_local_mm(sim.body_pos, ref.body_pos, root_index=root)
+    per_frame["root_pos_err"][t] = M.root_pos_error_m(sim.body_pos[:, root], ref.body_pos[:, root])
+    per_frame["root_rot_err"][t] = M.root_rot_error_rad(sim.body_rot[:, root], ref.body_rot[:, root])
+    per_frame["body_rot_err"][t] = M.body_rot_error_rad(sim.body_rot, ref.body_rot)
+    per_frame["joint_vel_err"][t] = M.joint_vel_error(sim.qvel[:, hinge_dof], ref.qvel[:, hinge_dof])
+    per_frame["root_vel_err"][t] = M.root_lin_vel_error(sim.body_linvel[:, root], ref.body_linvel[:, root])
+    per_frame["root_ang_vel_err"][t] = M.root_ang_vel_error(sim.body_angvel[:, root], ref.body_angvel[:, root])
+    body_err[t] = M.mean_body_pos_error_m(sim.body_pos, ref.body_pos)
+
+
+def _mean_over_clips(values: np.ndarray) -> float:
+    """Mean of a success-only figure over the clips that have a successful episode (NaN if none has)."""
+    finite = values[~np.isnan(values)]
+    return float(finite.mean()) if len(finite) else float("nan")
 
 
 def reference_policy(result: StepResult, humanoid: Humanoid) -> np.ndarray:

@@ -75,6 +75,8 @@ class StepResult:
         episode_id: Unique id of the current episode. Shape: (N,).
         episode_frame: Steps since the current episode's reset. Shape: (N,).
         info: Counts: ``diverged`` (blown-up simulations reset), ``term/<rule>``.
+        diverged: The simulation blew up at this step; ``final_sim`` is then the reference pose it was put back on,
+            not a state the character reached (it also counts as terminated). Shape: (N,).
     """
 
     sim: CharacterState
@@ -94,6 +96,7 @@ class StepResult:
     episode_id: np.ndarray
     episode_frame: np.ndarray
     info: dict[str, float]
+    diverged: np.ndarray
 
     @property
     def done(self) -> np.ndarray:
@@ -267,7 +270,7 @@ class TrackingGym:
         if autoreset and len(done):
             self._reset_ids(done, None, None)
         return self._result(
-            reward, terms, terminated, truncated, final_sim, final_ref, final_ref_next, final_phase, info
+            reward, terms, terminated, truncated, final_sim, final_ref, final_ref_next, final_phase, info, diverged
         )
 
     def _result(
@@ -281,6 +284,7 @@ class TrackingGym:
         final_ref_next: CharacterState,
         final_phase: np.ndarray,
         info: dict[str, float],
+        diverged: np.ndarray | None = None,
     ) -> StepResult:
         return StepResult(
             sim=self._state, ref=self._ref, ref_next=self._ref_next, reward=reward, reward_terms=terms,
@@ -288,6 +292,7 @@ class TrackingGym:
             final_ref_next=final_ref_next, final_phase=final_phase, phase=self.phase(),
             clip=self.clip.copy(), time=self.time, episode_id=self.episode_id.copy(),
             episode_frame=self.frame.copy(), info=info,
+            diverged=np.zeros(self.num_envs, dtype=bool) if diverged is None else diverged,
         )  # fmt: skip
 
     def state_dict(self) -> dict:

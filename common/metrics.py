@@ -81,9 +81,11 @@ _METRIC_LIST: tuple[MetricInfo, ...] = (
     MetricInfo("joint_vel_err", "rad/s", False, "mean absolute joint (dof) velocity difference"),
     MetricInfo("root_vel_err", "m/s", False, "root linear velocity difference norm"),
     MetricInfo("root_ang_vel_err", "rad/s", False, "root angular velocity difference norm"),
+    MetricInfo("mpjpe_g_succ", "mm", False, "MPJPE-g over the episodes that succeed (PHC/UHC; read with success)"),
+    MetricInfo("mpjpe_l_succ", "mm", False, "MPJPE-l over the episodes that succeed (PHC/UHC; read with success)"),
     MetricInfo("success", "fraction", True, "episodes whose mean body error never exceeds 0.5 m"),
     MetricInfo("episode_len_ratio", "", True, "episode length divided by the maximum length"),
-    MetricInfo("survival", "fraction", True, "episodes played to their full length without termination (SuperTrack)"),
+    MetricInfo("survival", "fraction", True, "episodes whose failure rule never fired over the horizon (SuperTrack)"),
 )
 
 METRICS: dict[str, MetricInfo] = {m.key: m for m in _METRIC_LIST}

@@ -57,6 +57,18 @@ def test_timestep_from_config() -> None:
         PhysicsConfig(substeps=0)
 
 
+def test_armature_on_every_hinge_only() -> None:
+    h = Humanoid()
+    m = h.model
+    np.testing.assert_array_equal(m.dof_armature[:6], 0.0)  # the free root joint has no rotor
+    np.testing.assert_array_equal(m.dof_armature[h.hinge_dof], 0.01)  # the MJCF's value
+    override = Humanoid(PhysicsConfig(armature=0.004)).model
+    np.testing.assert_array_equal(override.dof_armature[h.hinge_dof], 0.004)
+    np.testing.assert_array_equal(override.dof_armature[:6], 0.0)
+    with pytest.raises(ValueError, match="armature"):
+        PhysicsConfig(armature=-0.001)
+
+
 def test_offsets_masses_and_gains_match_deepmimic(humanoid: Humanoid, character: dict) -> None:
     m = humanoid.model
     ctrl = {c["Name"]: c for c in json.loads((DATA / "humanoid3d_ctrl.txt").read_text())["PDControllers"]}

@@ -258,6 +258,8 @@ def test_metric_registry() -> None:
         "joint_vel_err",
         "root_vel_err",
         "root_ang_vel_err",
+        "mpjpe_g_succ",
+        "mpjpe_l_succ",
         "success",
         "episode_len_ratio",
         "survival",
