@@ -36,7 +36,7 @@ def main() -> None:
     print("Evaluation protocol (the learners' judge):")
     print(protocol.table())
 
-    no_grace = EvalConfig(starts_per_clip=1, threads=args.threads,
+    no_grace = EvalConfig(starts_per_clip=1, threads=args.threads, full_horizon=False,
                           termination=TerminationConfig(max_episode_frames=None, grace_frames=0))  # fmt: skip
     fall = evaluate(policy, library, humanoid, no_grace)
     print("\nFrom t = 0 until the head is 25 cm off (no grace period):")

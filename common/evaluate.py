@@ -51,6 +51,8 @@ class EvalConfig:
         termination: The rule that marks an episode failed.
         full_horizon: Score every episode over its whole horizon, failed or not (see the module docstring); False
             ends an episode at its first failure and scores only the frames before it.
+        rsi_lift: Start a character whose reference pose pushes a body into the ground lifted clear of it
+            (:class:`common.gym.GymConfig`); the learners' gyms must use the same setting.
     """
 
     starts_per_clip: int = 4
@@ -61,6 +63,7 @@ class EvalConfig:
         default_factory=lambda: TerminationConfig(max_episode_frames=None, grace_frames=48, head_height_error=0.25)
     )
     full_horizon: bool = True
+    rsi_lift: bool = False
 
     def __post_init__(self) -> None:
         if self.starts_per_clip < 1 or self.max_frames < 1:
@@ -125,7 +128,7 @@ def evaluate(
     episode_max = np.minimum(config.max_frames, remaining)
     gym = TrackingGym(
         GymConfig(num_envs=len(clips), threads=config.threads, seed=config.seed, physics=humanoid.physics,
-                  termination=config.termination),
+                  termination=config.termination, rsi_lift=config.rsi_lift),
         library, humanoid,
     )  # fmt: skip
     try:
