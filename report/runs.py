@@ -76,19 +76,25 @@ class Run:
                 [float(m[key]) for m in rows])  # fmt: skip
 
 
-def _checkpoint(path: Path, iteration: int | None) -> Path:
-    from common.run import newest_checkpoint, numbered_checkpoints  # imports torch: only once a checkpoint is needed
+def _checkpoint(path: Path, iteration: int | None) -> tuple[Path, dict[str, Any]]:
+    """The checkpoint of ``iteration`` (None: the newest intact one) and its state, read without running anything."""
+    # Imported here (they import torch): reading curves alone stays cheap.
+    from common.checkpoint import CheckpointError, load_checkpoint_file
+    from common.run import load_newest_checkpoint, newest_checkpoint, numbered_checkpoints
 
-    if iteration is None:
-        found = newest_checkpoint(path / "checkpoints")
-        if found is None:
-            raise ReportError(f"{path}: unfinished run: no checkpoint in {path / 'checkpoints'}")
-        return found
     numbered = dict(numbered_checkpoints(path / "checkpoints"))
-    if iteration not in numbered:
+    if iteration is None and newest_checkpoint(path / "checkpoints") is None:
+        raise ReportError(f"{path}: unfinished run: no checkpoint in {path / 'checkpoints'}")
+    if iteration is not None and iteration not in numbered:
         have = ", ".join(str(i) for i in sorted(numbered)) or "none"
         raise ReportError(f"{path}: no checkpoint of iteration {iteration} (numbered checkpoints: {have})")
-    return numbered[iteration]
+    try:
+        if iteration is None:
+            found, state, _ = load_newest_checkpoint(path / "checkpoints")
+            return found, state
+        return numbered[iteration], load_checkpoint_file(numbered[iteration])
+    except CheckpointError as e:
+        raise ReportError(str(e)) from None
 
 
 def load_run(path: str | Path, iteration: int | None = None) -> Run:
@@ -99,10 +105,9 @@ def load_run(path: str | Path, iteration: int | None = None) -> Run:
         iteration: Checkpoint iteration to evaluate; None: the newest.
 
     Raises:
-        ReportError: If ``path`` is not a run directory, has no (such) checkpoint, or its files are unreadable.
+        ReportError: If ``path`` is not a run directory, has no (such) checkpoint, or its files are unreadable; a
+            checkpoint whose pickle asks for anything but tensors, arrays and plain values is refused unopened.
     """
-    import torch  # here, so that reading curves alone stays cheap for callers that never load a checkpoint
-
     path = Path(path)
     if not path.is_dir():
         raise ReportError(f"{path}: not a directory")
@@ -118,12 +123,9 @@ def load_run(path: str | Path, iteration: int | None = None) -> Run:
     learner = info.get("learner")
     if not learner:
         raise ReportError(f"{path}: run_info.json names no learner")
-    ckpt = _checkpoint(path, iteration)
-    try:
-        state = torch.load(ckpt, map_location="cpu", weights_only=False)
-    except Exception as e:  # noqa: BLE001 - any unpickling failure means the same thing here: a broken file
-        raise ReportError(f"{ckpt}: unreadable checkpoint: {e}") from e
-    meta_learner = state.get("meta", {}).get("learner")
+    ckpt, state = _checkpoint(path, iteration)
+    meta = state.get("meta")
+    meta_learner = meta.get("learner") if isinstance(meta, dict) else None
     if meta_learner not in (None, learner):
         raise ReportError(f"{ckpt}: checkpoint is from learner {meta_learner!r}, run_info.json says {learner!r}")
     return Run(
