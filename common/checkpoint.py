@@ -199,7 +199,8 @@ def load_newest_intact(checkpoint_dir: Path, numbered: list[tuple[int, Path]], w
     Args:
         checkpoint_dir: The run's ``checkpoints/``.
         numbered: Its numbered checkpoints, oldest first.
-        warn: Called with one line per checkpoint passed over (file and problem), and for an unreadable pointer.
+        warn: Called with one line per checkpoint passed over (file and problem) once an intact one is found, and
+            for an unreadable pointer.
         map_location: Passed to ``torch.load``.
         required: Entries a checkpoint must have to count as intact.
 
@@ -226,8 +227,9 @@ def load_newest_intact(checkpoint_dir: Path, numbered: list[tuple[int, Path]], w
         except CheckpointError as e:
             problems.append(str(e))
             passed_over.append(path)
-            warn(str(e))
             continue
+        for problem in problems:  # only now: if none reads, the one error below says it all
+            warn(problem)
         return path, state, passed_over
     if not problems:
         raise CheckpointError(f"{checkpoint_dir}: no checkpoint")

@@ -135,6 +135,7 @@ class RunDir:
         self.checkpoint_dir = self.path / "checkpoints"
         self.pointer_path = self.checkpoint_dir / POINTER_NAME
         self.start_time = datetime.now(timezone.utc)
+        self._resume_info: dict[str, Any] | None = None
         if self.path.exists() and not self.path.is_dir():
             raise RunDirError(f"run directory {self.path} exists and is not a directory")
         holds_run = self.config_path.exists() or self.checkpoint_dir.exists()
@@ -156,8 +157,9 @@ class RunDir:
     def write_run_info(self, extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
         """Record machine, versions, command line and start time (plus ``extra``, e.g. the seed).
 
-        On resume the original record is kept and this one is appended to its ``resumes`` list, so the
-        file tells on which machines each part of the run was trained.
+        On resume the original record is kept and this one is appended to its ``resumes`` list (by
+        :meth:`confirm_resume`, once the checkpoint is restored), so the file tells on which machines each part of
+        the run was trained.
 
         Args:
             extra: JSON-serialisable additions, e.g. ``{"seed": 3, "learner": "ppo"}``.
@@ -167,13 +169,34 @@ class RunDir:
         """
         info = {**machine_info(), "command": shlex.join(sys.argv), "start_time": self.start_time.isoformat()}
         info.update(extra or {})
+        if self.resume:
+            self._resume_info = info  # written by confirm_resume: a resume that fails changes nothing
+        else:
+            self._write_run_info(info)
+        return info
+
+    def _write_run_info(self, info: dict[str, Any]) -> None:
         record: dict[str, Any] = info
         if self.resume and self.run_info_path.exists():
-            record = json.loads(self.run_info_path.read_text(encoding="utf-8"))
-            record.setdefault("resumes", []).append(info)
+            try:
+                record = json.loads(self.run_info_path.read_text(encoding="utf-8"))
+                record.setdefault("resumes", []).append(info)
+            except (OSError, ValueError, AttributeError) as e:  # kept as it is: it is the only record of the start
+                print(f"warning: {self.run_info_path}: unreadable ({e}); this resume is not recorded in it",
+                      file=sys.stderr)  # fmt: skip
+                return
         with atomic_output(self.run_info_path) as tmp:
             tmp.write_text(json.dumps(record, indent=2, default=str) + "\n", encoding="utf-8")
-        return info
+
+    def confirm_resume(self, passed_over: list[Path]) -> None:
+        """Once a resume has restored its checkpoint: append this start to run_info.json, and keep the checkpoints
+        passed over as ``<name>.damaged``, so that the continued run neither overwrites nor prunes them and no later
+        resume tries them again."""
+        if self._resume_info is not None:
+            self._write_run_info(self._resume_info)
+            self._resume_info = None
+        for path in passed_over:
+            print(f"warning: {path} kept as {set_aside(path).name}", file=sys.stderr)
 
     def checkpoint_path(self, iteration: int) -> Path:
         """Path of the numbered checkpoint of ``iteration``."""
@@ -233,12 +256,6 @@ class RunDir:
         """
         return load_newest_checkpoint(self.checkpoint_dir, map_location, required)
 
-    def set_aside(self, passed_over: list[Path]) -> None:
-        """Once a resume has succeeded: keep the checkpoints it passed over as ``<name>.damaged``, so that the
-        continued run neither overwrites nor prunes them and no later resume tries them again."""
-        for path in passed_over:
-            print(f"warning: {path} kept as {set_aside(path).name}", file=sys.stderr)
-
 
 def load_run_checkpoint(config_cls: type, run_dir: str | Path, checkpoint: str | Path,
                         *keys: str) -> tuple[Any, dict[str, Any]]:  # fmt: skip
@@ -282,6 +299,9 @@ def check_compatible(saved_meta: Mapping[str, Any], current_meta: Mapping[str, A
     Raises:
         ValueError: Listing every differing key with its saved and current value.
     """
+    if saved_meta.get("learner") != current_meta.get("learner"):  # one line, not every config key that differs
+        raise ValueError(f"checkpoint {path} is a checkpoint of learner {saved_meta.get('learner')!r}, this run's "
+                         f"learner is {current_meta.get('learner')!r}")  # fmt: skip
     saved, current = _flatten(saved_meta), _flatten(current_meta)
     missing = "<missing>"
     lines = [

@@ -196,7 +196,6 @@ class Trainer:
                 belongs to another config or learner.
         """
         path, state, passed_over = self.run_dir.load_latest_checkpoint(map_location="cpu", required=_STATE_KEYS)
-        print(f"resuming from {path} (iteration {state['iteration']})", file=sys.stderr)
         check_compatible(state["meta"], self.meta, path)
         try:
             self.learner.load_state_dict(state["learner"])
@@ -205,7 +204,8 @@ class Trainer:
         set_rng_state(state["rng"], self.rng)
         self.iteration, self.samples = int(state["iteration"]), int(state["samples"])
         self.train_seconds = float(state["train_seconds"])
-        self.run_dir.set_aside(passed_over)
+        print(f"resuming from {path} (iteration {self.iteration})", file=sys.stderr)
+        self.run_dir.confirm_resume(passed_over)
 
     def evaluate(self) -> EvalResult:
         return evaluate(self.learner.policy(), self.library, self.humanoid, self.train.eval)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -97,6 +98,17 @@ def _checkpoint(path: Path, iteration: int | None) -> tuple[Path, dict[str, Any]
         raise ReportError(str(e)) from None
 
 
+def _read(file: Path, parse: Callable[[Path], Any]) -> Any:
+    """``parse(file)``, or a ReportError naming the file (binary bytes, bad JSON or YAML, unreadable)."""
+    try:
+        return parse(file)
+    except UnicodeDecodeError as e:
+        raise ReportError(f"{file}: unreadable run file: not text (byte 0x{e.object[e.start]:02x} at offset "
+                          f"{e.start} is not UTF-8)") from None  # fmt: skip
+    except (OSError, ValueError, ConfigError) as e:
+        raise ReportError(f"{file}: unreadable run file: {str(e).splitlines()[0]}") from None
+
+
 def load_run(path: str | Path, iteration: int | None = None) -> Run:
     """Reads a run directory.
 
@@ -114,12 +126,11 @@ def load_run(path: str | Path, iteration: int | None = None) -> Run:
     missing = [n for n in ("config.yaml", "run_info.json") if not (path / n).is_file()]
     if missing:
         raise ReportError(f"{path}: not a run directory (missing {', '.join(missing)})")
-    try:
-        config = parse_yaml((path / "config.yaml").read_text(encoding="utf-8")) or {}
-        info = json.loads((path / "run_info.json").read_text(encoding="utf-8"))
-        metrics = read_metrics(path) if (path / "metrics.jsonl").is_file() else []
-    except (OSError, ValueError, ConfigError) as e:
-        raise ReportError(f"{path}: unreadable run files: {e}") from e
+    config = _read(path / "config.yaml", lambda f: parse_yaml(f.read_text(encoding="utf-8")) or {})
+    info = _read(path / "run_info.json", lambda f: json.loads(f.read_text(encoding="utf-8")))
+    metrics = _read(path / "metrics.jsonl", read_metrics) if (path / "metrics.jsonl").is_file() else []
+    if not isinstance(config, dict) or not isinstance(info, dict):
+        raise ReportError(f"{path}: unreadable run files: config.yaml and run_info.json must each hold a mapping")
     learner = info.get("learner")
     if not learner:
         raise ReportError(f"{path}: run_info.json names no learner")

@@ -167,7 +167,10 @@ def test_write_run_info_records_machine_and_resumes(tmp_path: Path) -> None:
     assert saved["seed"] == 7 and saved["torch"] == torch.__version__ and saved["numpy"] == np.__version__
     assert saved["torch_threads"] == torch.get_num_threads() and isinstance(saved["cpu"], str)
     run.save_checkpoint({}, iteration=1)
-    RunDir(run.path, resume=True).write_run_info({"seed": 8})
+    resuming = RunDir(run.path, resume=True)
+    resuming.write_run_info({"seed": 8})
+    assert "resumes" not in json.loads(run.run_info_path.read_text())  # not before the checkpoint is restored
+    resuming.confirm_resume([])
     resumed = json.loads(run.run_info_path.read_text())
     assert resumed["seed"] == 7 and [r["seed"] for r in resumed["resumes"]] == [8]
 
