@@ -28,7 +28,11 @@ from typing import Any
 
 import numpy as np
 import torch
-from numpy._core import multiarray as _np_multiarray
+
+try:
+    from numpy._core import multiarray as _np_multiarray
+except ImportError:  # numpy < 2
+    from numpy.core import multiarray as _np_multiarray
 
 from common.config import atomic_output
 
@@ -39,9 +43,8 @@ _PLAIN = (str, int, float, bool, bytes, type(None))
 _TORCH_LEAVES = (torch.Tensor, torch.dtype, torch.device, torch.Size)
 # Arrays of numbers and booleans only: an object array's items would be further pickles.
 _NUMBER_KINDS = "biufc"
-_NUMBER_DTYPES = [t for t in vars(np.dtypes).values()
-                  if isinstance(t, type) and issubclass(t, np.dtype) and getattr(t, "type", None) is not None
-                  and np.dtype(t.type).kind in _NUMBER_KINDS]  # fmt: skip
+_NUMBER_DTYPES = sorted({type(np.dtype(c)) for c in np.typecodes["All"] if np.dtype(c).kind in _NUMBER_KINDS},
+                        key=lambda t: t.__name__)  # fmt: skip
 # What numpy's pickles of such arrays and scalars call: ndarray.__new__ on ndarray itself, dtype from a type code,
 # a scalar from raw bytes. Under numpy 1.x the module was numpy.core, hence the second names.
 _NUMPY_GLOBALS: list[Any] = [
