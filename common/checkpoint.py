@@ -20,8 +20,8 @@ import hashlib
 import json
 import pickle
 import re
+import sys
 import warnings
-import zipfile
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -73,8 +73,9 @@ def check_plain(value: Any, where: str = "state") -> None:
         for i, v in enumerate(value):
             check_plain(v, f"{where}[{i}]")
     elif isinstance(value, (np.ndarray, np.generic)):
-        if value.dtype.kind not in _NUMBER_KINDS:
-            raise TypeError(f"{where}: numpy {value.dtype} values; a checkpoint holds arrays of numbers or booleans")
+        if value.dtype.kind not in _NUMBER_KINDS or value.dtype.hasobject:
+            what = f"{value.dtype} values" + (" holding object references" if value.dtype.hasobject else "")
+            raise TypeError(f"{where}: numpy {what}; a checkpoint holds arrays of numbers or booleans")
     elif not isinstance(value, _PLAIN + _TORCH_LEAVES):
         raise TypeError(f"{where} is a {type(value).__module__}.{type(value).__name__}; a checkpoint holds only "
                         "tensors, numpy arrays and plain Python values")  # fmt: skip
@@ -139,14 +140,29 @@ def load_checkpoint_file(path: str | Path, map_location: str | torch.device | No
         raise CheckpointError(f"{path}: no such checkpoint file") from None
     except IsADirectoryError:
         raise CheckpointError(f"{path}: a directory, not a checkpoint file") from None
-    except (RuntimeError, OSError, EOFError, KeyError, ValueError, zipfile.BadZipFile, AttributeError) as e:
-        # torch reports a cut-short zip as RuntimeError or OSError(EINVAL), an empty file as EOFError, other bytes
-        # as KeyError or UnicodeDecodeError: all mean the same to a user.
+    except Exception as e:  # noqa: BLE001 - see below
+        # torch reports a cut-short zip as RuntimeError or OSError(EINVAL), an empty file as EOFError, and changed
+        # bytes as KeyError, UnicodeDecodeError, ValueError, IndexError or AssertionError (found by changing bytes of
+        # a real checkpoint): all mean the same to a user, a file that does not read.
         first = str(e).split(". ")[0].strip()
         detail = first if isinstance(e, (RuntimeError, OSError)) and first else f"{type(e).__name__} {first}".strip()
         raise CheckpointError(f"{path}: truncated or damaged ({detail})") from None
     if not isinstance(state, dict):
         raise CheckpointError(f"{path}: holds a {type(state).__name__}, not a checkpoint's dict")
+    try:
+        check_plain(state)
+        problem = None
+    except TypeError as e:
+        problem = str(e)
+    if problem is not None:
+        # Changed bytes of a dtype's pickled flags can make numbers look like object pointers (seen once in 300
+        # changed bytes): numpy then prints a traceback when it frees the array, which is kept quiet here.
+        previous_hook, sys.unraisablehook = sys.unraisablehook, lambda unraisable: None
+        try:
+            del state
+        finally:
+            sys.unraisablehook = previous_hook
+        raise CheckpointError(f"{path}: damaged ({problem})")
     # After the load, so that a cut-short file gets torch's more telling message; loading ran nothing.
     if sha256 is not None and file_digest(path) != sha256:
         raise CheckpointError(f"{path}: damaged: its SHA-256 differs from the one recorded in {POINTER_NAME} "
@@ -170,6 +186,16 @@ def read_pointer(checkpoint_dir: Path) -> dict[str, Any]:
     if not isinstance(pointer, dict) or not isinstance(pointer.get("checkpoints", {}), dict):
         raise CheckpointError(f"{path}: not a checkpoint pointer (expected an object with 'latest', 'checkpoints')")
     return pointer
+
+
+def recorded_digest(path: Path) -> str | None:
+    """The SHA-256 that ``latest.json`` next to ``path`` recorded for it when it was written; None if none."""
+    try:
+        record = read_pointer(path.parent).get("checkpoints", {}).get(path.name)
+    except CheckpointError:
+        return None
+    digest = record.get("sha256") if isinstance(record, Mapping) else None
+    return digest if isinstance(digest, str) else None
 
 
 def write_pointer(checkpoint_dir: Path, latest: str, records: Mapping[str, Mapping[str, Any]]) -> None:
@@ -214,16 +240,13 @@ def load_newest_intact(checkpoint_dir: Path, numbered: list[tuple[int, Path]], w
         CheckpointError: If there is no checkpoint, or none reads (every problem listed).
     """
     try:
-        records = read_pointer(checkpoint_dir).get("checkpoints", {})
+        read_pointer(checkpoint_dir)
     except CheckpointError as e:
         warn(f"{e}; checking the checkpoints without it")
-        records = {}
     problems, passed_over = [], []
     for path in candidates(checkpoint_dir, numbered):
-        record = records.get(path.name)
-        digest = record.get("sha256") if isinstance(record, Mapping) else None
         try:
-            state = load_checkpoint_file(path, map_location, sha256=digest if isinstance(digest, str) else None)
+            state = load_checkpoint_file(path, map_location, sha256=recorded_digest(path))
             missing = [k for k in required if k not in state]
             if missing:
                 raise CheckpointError(f"{path}: not a training checkpoint (no {', '.join(missing)})")

@@ -43,6 +43,7 @@ from common.checkpoint import (
     load_checkpoint_file,
     load_newest_intact,
     read_pointer,
+    recorded_digest,
     save_checkpoint_file,
     set_aside,
     write_pointer,
@@ -99,7 +100,7 @@ def read_checkpoint(path: str | Path) -> tuple[Path, dict[str, Any]]:
     """
     path = Path(path)
     if path.is_file():
-        return path, load_checkpoint_file(path)
+        return path, load_checkpoint_file(path, sha256=recorded_digest(path))
     if not path.is_dir():
         raise CheckpointError(f"{path}: no such checkpoint file or run directory")
     if not (path / "checkpoints").is_dir():
@@ -275,7 +276,7 @@ def load_run_checkpoint(config_cls: type, run_dir: str | Path, checkpoint: str |
             (:class:`CheckpointError` if it does not read).
     """
     cfg = load_config(config_cls, Path(run_dir) / "config.yaml")
-    state = load_checkpoint_file(checkpoint)
+    state = load_checkpoint_file(checkpoint, sha256=recorded_digest(Path(checkpoint)))
     learner = state.get("learner")
     if not isinstance(learner, Mapping):
         raise ValueError(f"{checkpoint}: no learner state in this file (not a checkpoint of a training run)")

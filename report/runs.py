@@ -80,7 +80,7 @@ class Run:
 def _checkpoint(path: Path, iteration: int | None) -> tuple[Path, dict[str, Any]]:
     """The checkpoint of ``iteration`` (None: the newest intact one) and its state, read without running anything."""
     # Imported here (they import torch): reading curves alone stays cheap.
-    from common.checkpoint import CheckpointError, load_checkpoint_file
+    from common.checkpoint import CheckpointError, load_checkpoint_file, recorded_digest
     from common.run import load_newest_checkpoint, newest_checkpoint, numbered_checkpoints
 
     numbered = dict(numbered_checkpoints(path / "checkpoints"))
@@ -93,7 +93,8 @@ def _checkpoint(path: Path, iteration: int | None) -> tuple[Path, dict[str, Any]
         if iteration is None:
             found, state, _ = load_newest_checkpoint(path / "checkpoints")
             return found, state
-        return numbered[iteration], load_checkpoint_file(numbered[iteration])
+        chosen = numbered[iteration]
+        return chosen, load_checkpoint_file(chosen, sha256=recorded_digest(chosen))
     except CheckpointError as e:
         raise ReportError(str(e)) from None
 

@@ -6,6 +6,7 @@ import json
 import os
 import pickle
 import re
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -167,3 +168,28 @@ def test_read_checkpoint_names_what_is_not_a_checkpoint(tmp_path: Path) -> None:
     torch.save([1, 2], tmp_path / "list.pt")
     with pytest.raises(CheckpointError, match=r"list\.pt: holds a list, not a checkpoint's dict"):
         read_checkpoint(tmp_path / "list.pt")
+
+
+def test_any_damage_to_a_checkpoint_reads_or_is_refused_naming_the_file(tmp_path: Path) -> None:
+    path = RunDir(tmp_path / "r", resume=False).save_checkpoint(_state(1.0), iteration=1)
+    good = path.read_bytes()
+    with zipfile.ZipFile(path) as z:
+        pickle_size = next(i for i in z.infolist() if i.filename.endswith("data.pkl")).file_size
+    start = good.index(b"\x80\x02")  # torch writes data.pkl first, with pickle protocol 2 (opcode PROTO 2)
+    rng = np.random.default_rng(0)
+    seen = set()
+    for trial in range(300):  # cut short, or one byte of the pickle changed: what disks and partial copies do
+        data = bytearray(good)
+        if trial % 10 == 0:
+            data = data[: rng.integers(len(data))]
+        else:
+            data[start + rng.integers(pickle_size)] = rng.integers(256)
+        bad = tmp_path / "bad.pt"
+        bad.write_bytes(bytes(data))
+        try:
+            load_checkpoint_file(bad)
+        except CheckpointError as e:
+            assert str(e).startswith(f"{bad}: ")
+            seen.add(str(e).split(" (")[1].split(" ")[0] if " (" in str(e) else str(e))
+    # Torch's own errors for these are of many types (RuntimeError, OSError, KeyError, IndexError, AssertionError...).
+    assert len(seen) >= 4, seen
