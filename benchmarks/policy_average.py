@@ -19,6 +19,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
+from common.checkpoint import load_checkpoint_file
 from common.evaluate import evaluate
 from common.humanoid import Humanoid
 from common.motion_dataset import load_motions
@@ -54,7 +55,7 @@ def main() -> None:
     rows = []
     for iteration in sorted(checkpoints):
         path = checkpoints[iteration]
-        samples = int(torch.load(path, map_location="cpu", weights_only=False)["samples"])
+        samples = int(load_checkpoint_file(path)["samples"])
         row = [iteration, samples]
         results = [evaluate(load_eval_policy(run.path, path, humanoid, library, average=a), library, humanoid,
                             protocol) for a in (False, True)]  # fmt: skip

@@ -23,11 +23,12 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from common.checkpoint import CheckpointError  # noqa: E402
 from common.config import load_config  # noqa: E402
 from common.evaluate import reference_policy  # noqa: E402
 from common.humanoid import Humanoid  # noqa: E402
 from common.motion_dataset import load_motions  # noqa: E402
-from common.run import RunDirError, checkpoint_file  # noqa: E402
+from common.run import read_checkpoint  # noqa: E402
 from supertrack.config import SuperTrackConfig  # noqa: E402
 from supertrack.learner import SuperTrackLearner  # noqa: E402
 from supertrack.rollout import world_model_rollout  # noqa: E402
@@ -47,14 +48,14 @@ def main() -> None:
     overrides = ["world_model.compile=false", "policy.compile=false"]
     cfg = load_config(SuperTrackConfig, run / "config.yaml", overrides)
     try:
-        checkpoint = checkpoint_file(args.checkpoint or run)
-    except RunDirError as e:
+        checkpoint, state = read_checkpoint(args.checkpoint or run)
+    except CheckpointError as e:
         raise SystemExit(str(e)) from e
     humanoid = Humanoid(cfg.gym.physics)
     library = load_motions(list(cfg.train.motions), humanoid)
     learner = SuperTrackLearner(cfg, humanoid, library, np.random.default_rng(0))
     try:
-        learner.load_state_dict(torch.load(checkpoint, map_location="cpu", weights_only=False)["learner"])
+        learner.load_state_dict(state["learner"])
         windows = learner.val_buffer.sample_windows(args.windows, 2, np.random.default_rng(1))
         sim = BodyState.unpack(torch.as_tensor(windows["sim"]))
         with torch.no_grad():

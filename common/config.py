@@ -57,6 +57,13 @@ def parse_yaml(text: str) -> Any:
     return yaml.load(text, Loader=_Loader)  # noqa: S506 -- _Loader derives from SafeLoader
 
 
+def yaml_problem(e: yaml.YAMLError) -> str:
+    """PyYAML's error on one line: the problem and where (its own message spans several, with a source excerpt)."""
+    mark = getattr(e, "problem_mark", None)
+    problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+    return f"{problem} at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else problem
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path`` that replaces ``path`` only if the block succeeds.
@@ -100,8 +107,11 @@ def load_config(cls: type[T], path: str | Path, overrides: Sequence[str] = ()) -
     source = str(path)
     try:
         data = parse_yaml(Path(path).read_text(encoding="utf-8"))
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{source}: not a text file (byte 0x{e.object[e.start]:02x} at offset {e.start} is not "
+                          "UTF-8); a config is YAML text") from None  # fmt: skip
     except yaml.YAMLError as e:
-        raise ConfigError(f"{source}: invalid YAML: {e}") from e
+        raise ConfigError(f"{source}: invalid YAML: {yaml_problem(e)}") from None
     if data is None:
         data = {}
     if not isinstance(data, Mapping):
@@ -137,7 +147,7 @@ def apply_overrides(cls: type, data: Mapping[str, Any], overrides: Sequence[str]
         try:
             value = parse_yaml(raw) if raw.strip() else ""
         except yaml.YAMLError as e:
-            raise ConfigError(f"override {override!r}: invalid YAML value: {e}") from e
+            raise ConfigError(f"override {override!r}: invalid YAML value: {yaml_problem(e)}") from None
         section_cls: type | None = cls
         node = result
         for depth, part in enumerate(parts):

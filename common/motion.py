@@ -24,6 +24,11 @@ from common.humanoid import DEEPMIMIC_JOINTS
 from common.rotations import quat_fix_hemisphere, quat_from_axis_angle, quat_mul
 
 ROW_LENGTH = 44
+# Physical bounds of a clip's values: beyond them a file is corrupt or in other units (e.g. millimetres), and
+# carrying on would put the character where nothing can track it.
+MAX_ROOT_DISTANCE = 1000.0  # m from the origin
+MAX_FRAME_DURATION = 60.0  # s
+MAX_HINGE_ANGLE = 2.0 * math.pi  # rad: a knee or elbow turned more than once round
 LOOP_MODES = ("wrap", "none")
 CLIP_PACK_FORMAT = "mimictrack.clip_pack"
 CLIP_PACK_VERSION = 1
@@ -117,6 +122,9 @@ def frames_to_clip(frames: np.ndarray, loop: str, name: str, source: str) -> Cli
     if len(nonpos):
         f = nonpos[0]
         raise MotionFormatError(f"{source}: frame {f}: frame duration must be positive, got {dur[f]}")
+    _check_bound(dur, MAX_FRAME_DURATION, source, "frame duration {:.6g} s is above {:g} s")
+    _check_bound(np.linalg.norm(frames[:, 1:4], axis=-1), MAX_ROOT_DISTANCE, source,
+                 "root {:.6g} m from the origin, farther than {:g} m")  # fmt: skip
     times = np.concatenate([[0.0], np.cumsum(dur)])
 
     root_pos = y_up_to_z_up_pos(frames[:, 1:4])
@@ -130,12 +138,21 @@ def frames_to_clip(frames: np.ndarray, loop: str, name: str, source: str) -> Cli
         else:
             # A rotation about DeepMimic's local +z (Y up); the conversion below makes it one about -y (Z up),
             # i.e. the model's +y hinge with the angle negated.
+            _check_bound(np.abs(frames[:, col]), MAX_HINGE_ANGLE, source, f"'{joint}' angle {{:.6g}} rad is beyond "
+                         "{:.6g} rad")  # fmt: skip
             joint_rot.append(quat_from_axis_angle(_DEEPMIMIC_HINGE_AXIS, frames[:, col]))
             col += 1
     joint_rot = np.stack(joint_rot, axis=1)
     root_rot = quat_fix_hemisphere(y_up_to_z_up_quat(root_rot), axis=0)
     joint_rot = quat_fix_hemisphere(y_up_to_z_up_quat(joint_rot), axis=0)
     return Clip(name, source, loop == "wrap", times, root_pos, root_rot, joint_rot)
+
+
+def _check_bound(values: np.ndarray, bound: float, source: str, problem: str) -> None:
+    """MotionFormatError naming the first frame whose value exceeds ``bound``; ``problem`` formats (value, bound)."""
+    over = np.flatnonzero(values > bound)
+    if len(over):
+        raise MotionFormatError(f"{source}: frame {over[0]}: {problem.format(values[over[0]], bound)}")
 
 
 def _unit_quats(q: np.ndarray, source: str, joint: str) -> np.ndarray:
@@ -150,7 +167,10 @@ def read_deepmimic(path: str | Path) -> Clip:
     """Reads one DeepMimic ``.txt`` clip (JSON with ``Loop`` and ``Frames``)."""
     path = Path(path)
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise MotionFormatError(f"{path}: not a text file (byte 0x{e.object[e.start]:02x} at offset {e.start} is not "
+                                "UTF-8); a DeepMimic clip is JSON text") from None  # fmt: skip
     except json.JSONDecodeError as e:
         raise MotionFormatError(f"{path}: not valid JSON ({e})") from None
     except OSError as e:
@@ -180,8 +200,8 @@ def write_clip_pack(path: str | Path, sources: list[str | Path]) -> None:
             f.attrs["format"] = CLIP_PACK_FORMAT
             f.attrs["version"] = CLIP_PACK_VERSION
             for src in sources:
-                doc = json.loads(Path(src).read_text())
                 read_deepmimic(src)  # validates before storing
+                doc = json.loads(Path(src).read_text(encoding="utf-8"))
                 d = f.create_dataset(
                     clip_name(src), data=np.asarray(doc["Frames"], dtype=np.float32), compression="gzip"
                 )

@@ -15,7 +15,14 @@ import h5py
 import numpy as np
 
 from common.humanoid import Humanoid
-from common.motion import CLIP_PACK_FORMAT, Clip, MotionFormatError, read_clip_pack, read_deepmimic
+from common.motion import (
+    CLIP_PACK_FORMAT,
+    MAX_ROOT_DISTANCE,
+    Clip,
+    MotionFormatError,
+    read_clip_pack,
+    read_deepmimic,
+)
 from common.motion_library import FRAME_FIELDS, CharacterState, ClipFrames, MotionLibrary
 
 DATASET_FORMAT = "mimictrack.motion_dataset"
@@ -112,6 +119,25 @@ def save_dataset(path: str | Path, library: MotionLibrary, humanoid: Humanoid) -
         tmp.unlink(missing_ok=True)
 
 
+def _check_frames(frames: CharacterState, where: str, humanoid: Humanoid) -> None:
+    """MotionFormatError at ``where`` naming the first frame that is not finite, of the wrong size, or with a root
+    farther than :data:`~common.motion.MAX_ROOT_DISTANCE` from the origin."""
+    if frames.qpos.ndim != 2 or frames.qpos.shape[1] != humanoid.nq:
+        raise MotionFormatError(f"{where}: qpos has shape {frames.qpos.shape}, the model needs (frames, {humanoid.nq})")
+    for field in FRAME_FIELDS:
+        values = getattr(frames, field)
+        if len(values) != len(frames.qpos):
+            raise MotionFormatError(f"{where}: {field} has {len(values)} frames, qpos {len(frames.qpos)}")
+        bad = np.flatnonzero(~np.isfinite(values.reshape(len(values), -1)).all(axis=1))
+        if len(bad):
+            raise MotionFormatError(f"{where}: frame {bad[0]}: {field} holds a value that is not finite")
+    distance = np.linalg.norm(frames.qpos[:, :3], axis=-1)
+    far = np.flatnonzero(distance > MAX_ROOT_DISTANCE)
+    if len(far):
+        raise MotionFormatError(f"{where}: frame {far[0]}: root {distance[far[0]]:.6g} m from the origin, farther than "
+                                f"{MAX_ROOT_DISTANCE:g} m")  # fmt: skip
+
+
 def load_dataset(path: str | Path, humanoid: Humanoid) -> MotionLibrary:
     """Reads a motion dataset written by :func:`save_dataset`.
 
@@ -141,6 +167,7 @@ def load_dataset(path: str | Path, humanoid: Humanoid) -> MotionLibrary:
             clips = []
             for g in groups:
                 frames = CharacterState(**{k: g[k][()] for k in FRAME_FIELDS})
+                _check_frames(frames, f"{path}: clip '{g.name.split('/')[-1]}'", humanoid)
                 clips.append(
                     ClipFrames(
                         g.name.split("/")[-1],

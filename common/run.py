@@ -6,11 +6,13 @@ Layout of a run directory::
     run_info.json             machine, versions, command line, seed, start time (+ one entry per resume)
     metrics.jsonl             one JSON object per logged iteration (common.logs.MetricsLogger)
     tb/                       TensorBoard events (only if the ``tensorboard`` package is installed)
-    checkpoints/ckpt_<iteration:08d>.pt   newest K numbered checkpoints
-    checkpoints/latest.pt     hard link to (or copy of) the newest numbered checkpoint
+    checkpoints/ckpt_<iteration:08d>.pt   newest K numbered checkpoints (tensors, arrays, plain values only)
+    checkpoints/latest.json   names the newest numbered checkpoint; size and SHA-256 of each kept one
 
 Every file that a crash could leave half-written is written to a temporary file in the same folder and
 moved into place with ``os.replace``, so a reader only ever sees a complete old or a complete new file.
+Checkpoints are read without running anything they hold, and ``--resume`` passes over a damaged newest
+checkpoint to the newest intact one (:mod:`common.checkpoint`).
 Metrics logging, timers and the progress display live in :mod:`common.logs`.
 """
 
@@ -24,7 +26,6 @@ import platform
 import random
 import re
 import shlex
-import shutil
 import sys
 from collections.abc import Mapping
 from datetime import datetime, timezone
@@ -34,6 +35,19 @@ from typing import Any
 import numpy as np
 import torch
 
+from common.checkpoint import (
+    LEGACY_LATEST_NAME,
+    POINTER_NAME,
+    CheckpointError,
+    candidates,
+    load_checkpoint_file,
+    load_newest_intact,
+    read_pointer,
+    recorded_digest,
+    save_checkpoint_file,
+    set_aside,
+    write_pointer,
+)
 from common.config import atomic_output, load_config, save_config
 
 log = logging.getLogger(__name__)
@@ -53,33 +67,46 @@ def numbered_checkpoints(checkpoint_dir: Path) -> list[tuple[int, Path]]:
 
 
 def newest_checkpoint(checkpoint_dir: Path) -> Path | None:
-    """The newest numbered checkpoint in ``checkpoint_dir``, else its ``latest.pt``, else None.
+    """The newest numbered checkpoint in ``checkpoint_dir``, else a legacy ``latest.pt``, else None (unread).
 
-    Numbered files come first because a crash between writing one and relinking ``latest.pt`` leaves ``latest.pt``
-    one checkpoint behind.
+    Numbered files come first, not the one ``latest.json`` names, because a crash between writing a checkpoint and
+    its pointer leaves the pointer one checkpoint behind.
     """
-    numbered = numbered_checkpoints(checkpoint_dir)
-    if numbered:
-        return numbered[-1][1]
-    latest = checkpoint_dir / "latest.pt"
-    return latest if latest.is_file() else None
+    return next(candidates(checkpoint_dir, numbered_checkpoints(checkpoint_dir)), None)
 
 
-def checkpoint_file(path: str | Path) -> Path:
-    """A checkpoint file given as itself or as the run directory holding it (then its newest checkpoint).
+def load_newest_checkpoint(checkpoint_dir: Path, map_location: str | torch.device | None = "cpu",
+                           required: tuple[str, ...] = ()) -> tuple[Path, dict[str, Any], list[Path]]:  # fmt: skip
+    """The newest intact checkpoint of ``checkpoint_dir`` (holding the entries ``required``), its state and the newer
+    ones passed over; one warning line on stderr for each of those (file and problem).
 
     Raises:
-        RunDirError: Naming ``path`` if it is neither a file nor a run directory with a checkpoint.
+        CheckpointError: If none reads.
+    """
+    def warn(message: str) -> None:
+        print(f"warning: {message}; passed over", file=sys.stderr)
+
+    return load_newest_intact(checkpoint_dir, numbered_checkpoints(checkpoint_dir), warn, map_location, required)
+
+
+def read_checkpoint(path: str | Path) -> tuple[Path, dict[str, Any]]:
+    """A checkpoint given as a file, or as the run directory holding it (then its newest intact checkpoint).
+
+    Returns:
+        ``(file, state)``, the state on the CPU.
+
+    Raises:
+        CheckpointError: Naming the file and the problem (no such file or run, damaged, refused).
     """
     path = Path(path)
     if path.is_file():
-        return path
+        return path, load_checkpoint_file(path, sha256=recorded_digest(path))
     if not path.is_dir():
-        raise RunDirError(f"{path}: no such checkpoint file or run directory")
-    found = newest_checkpoint(path / "checkpoints")
-    if found is None:
-        raise RunDirError(f"{path}: no checkpoint in {path / 'checkpoints'}")
-    return found
+        raise CheckpointError(f"{path}: no such checkpoint file or run directory")
+    if not (path / "checkpoints").is_dir():
+        raise CheckpointError(f"{path}: not a run directory (no checkpoints/)")
+    found, state, _ = load_newest_checkpoint(path / "checkpoints")
+    return found, state
 
 
 class RunDir:
@@ -88,7 +115,7 @@ class RunDir:
     Args:
         path: Directory; created with its parents if needed.
         resume: Continue the run stored in ``path``; requires at least one checkpoint.
-        keep_checkpoints: Number of newest numbered checkpoints kept (``latest.pt`` is always kept).
+        keep_checkpoints: Number of newest numbered checkpoints kept.
 
     Raises:
         RunDirError: If ``path`` already holds a run and ``resume`` is False, or ``resume`` is True and
@@ -107,8 +134,9 @@ class RunDir:
         self.tb_dir = self.path / "tb"
         self.run_info_path = self.path / "run_info.json"
         self.checkpoint_dir = self.path / "checkpoints"
-        self.latest_path = self.checkpoint_dir / "latest.pt"
+        self.pointer_path = self.checkpoint_dir / POINTER_NAME
         self.start_time = datetime.now(timezone.utc)
+        self._resume_info: dict[str, Any] | None = None
         if self.path.exists() and not self.path.is_dir():
             raise RunDirError(f"run directory {self.path} exists and is not a directory")
         holds_run = self.config_path.exists() or self.checkpoint_dir.exists()
@@ -130,8 +158,9 @@ class RunDir:
     def write_run_info(self, extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
         """Record machine, versions, command line and start time (plus ``extra``, e.g. the seed).
 
-        On resume the original record is kept and this one is appended to its ``resumes`` list, so the
-        file tells on which machines each part of the run was trained.
+        On resume the original record is kept and this one is appended to its ``resumes`` list (by
+        :meth:`confirm_resume`, once the checkpoint is restored), so the file tells on which machines each part of
+        the run was trained.
 
         Args:
             extra: JSON-serialisable additions, e.g. ``{"seed": 3, "learner": "ppo"}``.
@@ -141,13 +170,34 @@ class RunDir:
         """
         info = {**machine_info(), "command": shlex.join(sys.argv), "start_time": self.start_time.isoformat()}
         info.update(extra or {})
+        if self.resume:
+            self._resume_info = info  # written by confirm_resume: a resume that fails changes nothing
+        else:
+            self._write_run_info(info)
+        return info
+
+    def _write_run_info(self, info: dict[str, Any]) -> None:
         record: dict[str, Any] = info
         if self.resume and self.run_info_path.exists():
-            record = json.loads(self.run_info_path.read_text(encoding="utf-8"))
-            record.setdefault("resumes", []).append(info)
+            try:
+                record = json.loads(self.run_info_path.read_text(encoding="utf-8"))
+                record.setdefault("resumes", []).append(info)
+            except (OSError, ValueError, AttributeError) as e:  # kept as it is: it is the only record of the start
+                print(f"warning: {self.run_info_path}: unreadable ({e}); this resume is not recorded in it",
+                      file=sys.stderr)  # fmt: skip
+                return
         with atomic_output(self.run_info_path) as tmp:
             tmp.write_text(json.dumps(record, indent=2, default=str) + "\n", encoding="utf-8")
-        return info
+
+    def confirm_resume(self, passed_over: list[Path]) -> None:
+        """Once a resume has restored its checkpoint: append this start to run_info.json, and keep the checkpoints
+        passed over as ``<name>.damaged``, so that the continued run neither overwrites nor prunes them and no later
+        resume tries them again."""
+        if self._resume_info is not None:
+            self._write_run_info(self._resume_info)
+            self._resume_info = None
+        for path in passed_over:
+            print(f"warning: {path} kept as {set_aside(path).name}", file=sys.stderr)
 
     def checkpoint_path(self, iteration: int) -> Path:
         """Path of the numbered checkpoint of ``iteration``."""
@@ -158,17 +208,18 @@ class RunDir:
         return numbered_checkpoints(self.checkpoint_dir)
 
     def latest_checkpoint_path(self) -> Path | None:
-        """The newest numbered checkpoint, else ``latest.pt``, else None (see :func:`newest_checkpoint`)."""
+        """The newest checkpoint file, unread (see :func:`newest_checkpoint`); None if there is none."""
         return newest_checkpoint(self.checkpoint_dir)
 
     def save_checkpoint(self, state: Mapping[str, Any], iteration: int) -> Path:
-        """Save ``state`` as checkpoint ``iteration``, update ``latest.pt`` and prune old checkpoints.
+        """Save ``state`` as checkpoint ``iteration``, point ``latest.json`` at it and prune old checkpoints.
 
         ``state`` gets an ``iteration`` entry if it has none. It should hold a ``meta`` dict (config
-        fingerprint) for :func:`check_compatible`.
+        fingerprint) for :func:`check_compatible`. A write that fails part-way (a full disk) raises and leaves
+        every earlier checkpoint and ``latest.json`` as they were.
 
         Args:
-            state: Picklable mapping (model/optimizer state dicts, RNG state, counters, ``meta``).
+            state: Tensors, numpy arrays and plain values (model/optimizer state dicts, RNG state, counters, ``meta``).
             iteration: Training iteration the state belongs to.
 
         Returns:
@@ -176,41 +227,35 @@ class RunDir:
 
         Raises:
             ValueError: If ``state["iteration"]`` exists and differs from ``iteration``.
+            TypeError: If ``state`` holds another kind of object (see :func:`common.checkpoint.check_plain`).
+            OSError: If the checkpoint cannot be written.
         """
         saved = dict(state)
         if saved.setdefault("iteration", iteration) != iteration:
             raise ValueError(f"state['iteration'] = {saved['iteration']} but saving as iteration {iteration}")
         path = self.checkpoint_path(iteration)
-        with atomic_output(path) as tmp:
-            torch.save(saved, tmp)
-        with atomic_output(self.latest_path) as tmp:
-            tmp.unlink()
-            try:
-                # A hard link costs no space and, unlike a symlink, survives pruning of its target.
-                os.link(path, tmp)
-            except OSError:
-                shutil.copyfile(path, tmp)
+        record = save_checkpoint_file(saved, path)
+        try:
+            records = read_pointer(self.checkpoint_dir).get("checkpoints", {})
+        except CheckpointError:
+            records = {}  # rewritten whole below; the checkpoints do not depend on it
+        kept = [p.name for _, p in self.numbered_checkpoints()[-self.keep_checkpoints :]]
+        records = {name: records[name] for name in kept if name in records and name != path.name}
+        write_pointer(self.checkpoint_dir, path.name, {**records, path.name: record})
         for _, old in self.numbered_checkpoints()[: -self.keep_checkpoints]:
             old.unlink(missing_ok=True)
+        # The hard link of earlier versions, now a stale copy of an older state: the new checkpoint supersedes it.
+        (self.checkpoint_dir / LEGACY_LATEST_NAME).unlink(missing_ok=True)
         return path
 
-    def load_latest_checkpoint(self, map_location: str | torch.device | None = "cpu") -> dict[str, Any]:
-        """Load the newest checkpoint.
-
-        Args:
-            map_location: Passed to ``torch.load``.
-
-        Returns:
-            The saved state dict.
+    def load_latest_checkpoint(self, map_location: str | torch.device | None = "cpu",
+                               required: tuple[str, ...] = ()) -> tuple[Path, dict[str, Any], list[Path]]:  # fmt: skip
+        """The newest intact checkpoint, its state and the newer ones passed over (:func:`load_newest_checkpoint`).
 
         Raises:
-            RunDirError: If there is no checkpoint.
+            CheckpointError: If no checkpoint reads.
         """
-        path = self.latest_checkpoint_path()
-        if path is None:
-            raise RunDirError(f"no checkpoint in {self.checkpoint_dir}")
-        # Our own file, and it holds numpy RNG state and learner objects that weights_only=True refuses.
-        return torch.load(path, map_location=map_location, weights_only=False)
+        return load_newest_checkpoint(self.checkpoint_dir, map_location, required)
 
 
 def load_run_checkpoint(config_cls: type, run_dir: str | Path, checkpoint: str | Path,
@@ -227,11 +272,12 @@ def load_run_checkpoint(config_cls: type, run_dir: str | Path, checkpoint: str |
         ``(config, learner_state)``.
 
     Raises:
-        ValueError: Naming the checkpoint and the missing entry if the file is not this learner's checkpoint.
+        ValueError: Naming the checkpoint and the missing entry if the file is not this learner's checkpoint
+            (:class:`CheckpointError` if it does not read).
     """
     cfg = load_config(config_cls, Path(run_dir) / "config.yaml")
-    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    learner = state.get("learner") if isinstance(state, Mapping) else None
+    state = load_checkpoint_file(checkpoint, sha256=recorded_digest(Path(checkpoint)))
+    learner = state.get("learner")
     if not isinstance(learner, Mapping):
         raise ValueError(f"{checkpoint}: no learner state in this file (not a checkpoint of a training run)")
     missing = [k for k in keys if k not in learner]
@@ -254,6 +300,9 @@ def check_compatible(saved_meta: Mapping[str, Any], current_meta: Mapping[str, A
     Raises:
         ValueError: Listing every differing key with its saved and current value.
     """
+    if saved_meta.get("learner") != current_meta.get("learner"):  # one line, not every config key that differs
+        raise ValueError(f"checkpoint {path} is a checkpoint of learner {saved_meta.get('learner')!r}, this run's "
+                         f"learner is {current_meta.get('learner')!r}")  # fmt: skip
     saved, current = _flatten(saved_meta), _flatten(current_meta)
     missing = "<missing>"
     lines = [

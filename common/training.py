@@ -32,6 +32,9 @@ from common.motion_dataset import load_motions
 from common.motion_library import MotionLibrary
 from common.run import RunDir, RunDirError, check_compatible, rng_state, set_rng_state
 
+# The entries of a training checkpoint (Trainer._state): one without them is not a checkpoint to resume.
+_STATE_KEYS = ("meta", "iteration", "samples", "train_seconds", "learner", "rng")
+
 
 @dataclass(frozen=True)
 class TrainConfig:
@@ -179,14 +182,20 @@ class Trainer:
         self.last_eval: EvalResult | None = None
 
     def _state(self) -> dict[str, Any]:
+        """What :meth:`resume` needs (the entries :data:`_STATE_KEYS`)."""
         return {
             "meta": self.meta, "iteration": self.iteration, "samples": self.samples,
             "train_seconds": self.train_seconds, "learner": self.learner.state_dict(), "rng": rng_state(self.rng),
         }  # fmt: skip
 
     def resume(self) -> None:
-        state = self.run_dir.load_latest_checkpoint(map_location="cpu")
-        path = self.run_dir.latest_checkpoint_path()
+        """Restores the newest intact checkpoint (saying which, and why any newer one was passed over).
+
+        Raises:
+            ValueError: If no checkpoint reads (:class:`common.checkpoint.CheckpointError`) or the newest intact one
+                belongs to another config or learner.
+        """
+        path, state, passed_over = self.run_dir.load_latest_checkpoint(map_location="cpu", required=_STATE_KEYS)
         check_compatible(state["meta"], self.meta, path)
         try:
             self.learner.load_state_dict(state["learner"])
@@ -195,6 +204,8 @@ class Trainer:
         set_rng_state(state["rng"], self.rng)
         self.iteration, self.samples = int(state["iteration"]), int(state["samples"])
         self.train_seconds = float(state["train_seconds"])
+        print(f"resuming from {path} (iteration {self.iteration})", file=sys.stderr)
+        self.run_dir.confirm_resume(passed_over)
 
     def evaluate(self) -> EvalResult:
         return evaluate(self.learner.policy(), self.library, self.humanoid, self.train.eval)
@@ -242,15 +253,23 @@ class Trainer:
                     logger.log(self.iteration, metrics, self.samples, self.train_seconds)
                 progress.update(1, samples=self.samples, metrics=metrics)
                 if self.train_seconds >= next_ckpt:
-                    self.run_dir.save_checkpoint(self._state(), self.iteration)
+                    self._save()
                     next_ckpt = self.train_seconds + 60.0 * t.checkpoint_every_minutes
             if evaluated_at != self.iteration:
                 logger.log(self.iteration, self._evaluate(), self.samples, self.train_seconds)
-            self.run_dir.save_checkpoint(self._state(), self.iteration)
+            self._save()
         finally:
             progress.close()
             logger.close()
         return self.last_eval
+
+    def _save(self) -> None:
+        try:
+            self.run_dir.save_checkpoint(self._state(), self.iteration)
+        except OSError as e:  # a full disk or a lost mount: what is saved stays, the run cannot go on
+            raise SystemExit(f"error: cannot write the checkpoint of iteration {self.iteration} in "
+                             f"{self.run_dir.checkpoint_dir}: {e.strerror or e}; the checkpoints already there are "
+                             "intact (continue with --resume once it can be written)") from None  # fmt: skip
 
     def _evaluate(self) -> dict[str, float]:
         self.last_eval = self.evaluate()

@@ -26,8 +26,8 @@ offsets from the reference (a zero action plays the clip back open loop) and lea
 rollout_length x num_envs steps, with a running observation normaliser and PARC's adaptive clip weights.
 
 Every run writes RUN_DIR/config.yaml (resolved config), run_info.json, metrics.jsonl and tb/ (losses/..., reward/...,
-charts/..., perf/..., eval/...), and checkpoints/ (atomic; latest.pt). Ctrl-C stops at the end of the current
-iteration, evaluates and checkpoints (press it twice to abort without saving).
+charts/..., perf/..., eval/...), and checkpoints/ (atomic; latest.json names the newest). Ctrl-C stops at the end of
+the current iteration, evaluates and checkpoints (press it twice to abort without saving).
 """
 
 EPILOG = """\
@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
             try:
                 trainer.resume()
             except (ValueError, KeyError) as e:
-                sys.exit(f"error: cannot resume from {run_dir.latest_checkpoint_path()}: {e}")
+                sys.exit(f"error: cannot resume: {e}")
         stop = _GracefulStop()
         previous = signal.signal(signal.SIGINT, stop)
         try:

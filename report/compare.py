@@ -83,7 +83,6 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
     if not run_dirs:
         raise ReportError("no run directory given")
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     runs = [load_run(p, checkpoint) for p in run_dirs]
     unique_labels(runs)
     notes: list[str] = []
@@ -105,6 +104,7 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
         library = load_motions(specs, humanoid)
     except (MotionFormatError, FileNotFoundError, KeyError, ValueError) as e:
         raise ReportError(f"cannot load motions {specs}: {e}") from e
+    out.mkdir(parents=True, exist_ok=True)  # only now: a refused report leaves no folder behind
     policies, results = [], []
     for run in runs:
         policy = export_module(run.learner).load_eval_policy(run.path, run.checkpoint, humanoid, library)

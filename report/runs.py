@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -76,19 +77,37 @@ class Run:
                 [float(m[key]) for m in rows])  # fmt: skip
 
 
-def _checkpoint(path: Path, iteration: int | None) -> Path:
-    from common.run import newest_checkpoint, numbered_checkpoints  # imports torch: only once a checkpoint is needed
+def _checkpoint(path: Path, iteration: int | None) -> tuple[Path, dict[str, Any]]:
+    """The checkpoint of ``iteration`` (None: the newest intact one) and its state, read without running anything."""
+    # Imported here (they import torch): reading curves alone stays cheap.
+    from common.checkpoint import CheckpointError, load_checkpoint_file, recorded_digest
+    from common.run import load_newest_checkpoint, newest_checkpoint, numbered_checkpoints
 
-    if iteration is None:
-        found = newest_checkpoint(path / "checkpoints")
-        if found is None:
-            raise ReportError(f"{path}: unfinished run: no checkpoint in {path / 'checkpoints'}")
-        return found
     numbered = dict(numbered_checkpoints(path / "checkpoints"))
-    if iteration not in numbered:
+    if iteration is None and newest_checkpoint(path / "checkpoints") is None:
+        raise ReportError(f"{path}: unfinished run: no checkpoint in {path / 'checkpoints'}")
+    if iteration is not None and iteration not in numbered:
         have = ", ".join(str(i) for i in sorted(numbered)) or "none"
         raise ReportError(f"{path}: no checkpoint of iteration {iteration} (numbered checkpoints: {have})")
-    return numbered[iteration]
+    try:
+        if iteration is None:
+            found, state, _ = load_newest_checkpoint(path / "checkpoints")
+            return found, state
+        chosen = numbered[iteration]
+        return chosen, load_checkpoint_file(chosen, sha256=recorded_digest(chosen))
+    except CheckpointError as e:
+        raise ReportError(str(e)) from None
+
+
+def _read(file: Path, parse: Callable[[Path], Any]) -> Any:
+    """``parse(file)``, or a ReportError naming the file (binary bytes, bad JSON or YAML, unreadable)."""
+    try:
+        return parse(file)
+    except UnicodeDecodeError as e:
+        raise ReportError(f"{file}: unreadable run file: not text (byte 0x{e.object[e.start]:02x} at offset "
+                          f"{e.start} is not UTF-8)") from None  # fmt: skip
+    except (OSError, ValueError, ConfigError) as e:
+        raise ReportError(f"{file}: unreadable run file: {str(e).splitlines()[0]}") from None
 
 
 def load_run(path: str | Path, iteration: int | None = None) -> Run:
@@ -99,31 +118,26 @@ def load_run(path: str | Path, iteration: int | None = None) -> Run:
         iteration: Checkpoint iteration to evaluate; None: the newest.
 
     Raises:
-        ReportError: If ``path`` is not a run directory, has no (such) checkpoint, or its files are unreadable.
+        ReportError: If ``path`` is not a run directory, has no (such) checkpoint, or its files are unreadable; a
+            checkpoint whose pickle asks for anything but tensors, arrays and plain values is refused unopened.
     """
-    import torch  # here, so that reading curves alone stays cheap for callers that never load a checkpoint
-
     path = Path(path)
     if not path.is_dir():
         raise ReportError(f"{path}: not a directory")
     missing = [n for n in ("config.yaml", "run_info.json") if not (path / n).is_file()]
     if missing:
         raise ReportError(f"{path}: not a run directory (missing {', '.join(missing)})")
-    try:
-        config = parse_yaml((path / "config.yaml").read_text(encoding="utf-8")) or {}
-        info = json.loads((path / "run_info.json").read_text(encoding="utf-8"))
-        metrics = read_metrics(path) if (path / "metrics.jsonl").is_file() else []
-    except (OSError, ValueError, ConfigError) as e:
-        raise ReportError(f"{path}: unreadable run files: {e}") from e
+    config = _read(path / "config.yaml", lambda f: parse_yaml(f.read_text(encoding="utf-8")) or {})
+    info = _read(path / "run_info.json", lambda f: json.loads(f.read_text(encoding="utf-8")))
+    metrics = _read(path / "metrics.jsonl", read_metrics) if (path / "metrics.jsonl").is_file() else []
+    if not isinstance(config, dict) or not isinstance(info, dict):
+        raise ReportError(f"{path}: unreadable run files: config.yaml and run_info.json must each hold a mapping")
     learner = info.get("learner")
     if not learner:
         raise ReportError(f"{path}: run_info.json names no learner")
-    ckpt = _checkpoint(path, iteration)
-    try:
-        state = torch.load(ckpt, map_location="cpu", weights_only=False)
-    except Exception as e:  # noqa: BLE001 - any unpickling failure means the same thing here: a broken file
-        raise ReportError(f"{ckpt}: unreadable checkpoint: {e}") from e
-    meta_learner = state.get("meta", {}).get("learner")
+    ckpt, state = _checkpoint(path, iteration)
+    meta = state.get("meta")
+    meta_learner = meta.get("learner") if isinstance(meta, dict) else None
     if meta_learner not in (None, learner):
         raise ReportError(f"{ckpt}: checkpoint is from learner {meta_learner!r}, run_info.json says {learner!r}")
     return Run(

@@ -9,20 +9,19 @@ Example::
 from __future__ import annotations
 
 import argparse
-import pickle
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
+from common.checkpoint import CheckpointError
 from common.config import to_dict
 from common.evaluate import EvalResult
 from common.humanoid import Humanoid
 from common.motion_library import MotionLibrary
-from common.run import RunDirError, checkpoint_file
+from common.run import read_checkpoint
 from common.training import Trainer, add_common_arguments, compat_meta, setup
 from supertrack.config import SuperTrackConfig
 from supertrack.learner import SuperTrackLearner, clip_weights
@@ -62,10 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _read_init(path: str) -> tuple[Path, dict[str, Any]]:
     """The ``--init-from`` checkpoint and its contents; exits naming the file if it is not a SuperTrack checkpoint."""
     try:
-        source = checkpoint_file(path)
-        state = torch.load(source, map_location="cpu", weights_only=False)
-    except (RunDirError, OSError, RuntimeError, pickle.UnpicklingError) as e:
-        sys.exit(f"error: --init-from {path}: {e}")
+        source, state = read_checkpoint(path)
+    except CheckpointError as e:
+        sys.exit(f"error: --init-from {e}")
     meta = state.get("meta") if isinstance(state, dict) else None
     if not isinstance(meta, dict) or meta.get("learner") != "supertrack" or "learner" not in state:
         learner = meta.get("learner") if isinstance(meta, dict) else None

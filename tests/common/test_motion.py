@@ -205,6 +205,14 @@ def test_bundled_long_clips_load() -> None:
         ),
         (json.dumps({"Loop": "none", "Frames": [_row(dur=0.0), _row()]}), "frame 0: frame duration must be positive"),
         (json.dumps({"Loop": "once", "Frames": [_row(), _row()]}), "'Loop' must be one of"),
+        (json.dumps({"Loop": "none", "Frames": [_row(), [*_row()[:1], 1e30, *_row()[2:]]]}),
+         "frame 1: root 1e+30 m from the origin, farther than 1000 m"),
+        (json.dumps({"Loop": "none", "Frames": [_row(), [0.0, 600.0, 800.1, 0.0, *_row()[4:]]]}),
+         "frame 1: root 1000.08 m from the origin, farther than 1000 m"),  # sqrt(600^2 + 800.1^2)
+        (json.dumps({"Loop": "none", "Frames": [_row(dur=61.0), _row()]}),
+         "frame 0: frame duration 61 s is above 60 s"),
+        (json.dumps({"Loop": "none", "Frames": [_row(), _row(knee=7.0)]}),
+         "frame 1: 'right_knee' angle 7 rad is beyond 6.28319 rad"),
     ],
 )
 def test_bad_clip_fails_naming_file_and_frame(tmp_path: Path, content: str, message: str) -> None:
@@ -213,6 +221,14 @@ def test_bad_clip_fails_naming_file_and_frame(tmp_path: Path, content: str, mess
     with pytest.raises(MotionFormatError) as err:
         read_deepmimic(p)
     assert str(p) in str(err.value) and message in str(err.value)
+
+
+def test_binary_clip_fails_naming_file_and_byte(tmp_path: Path) -> None:
+    p = tmp_path / "clip.txt"
+    text = b'{"Loop": "none", "Frames": [[0.03'
+    p.write_bytes(text + b"\xff\xfe\x00\x01")
+    with pytest.raises(MotionFormatError, match=rf"{p}: not a text file \(byte 0xff at offset {len(text)} is not"):
+        read_deepmimic(p)
 
 
 def test_unknown_motion_spec_lists_bundled_clips() -> None:
@@ -252,6 +268,21 @@ def test_dataset_truncated_or_other_version_fails_clearly(
     save_dataset(path, walk_lib, humanoid)
     with pytest.raises(MotionFormatError, match="30.0 Hz"):
         load_dataset(path, Humanoid(PhysicsConfig(control_hz=30.0)))
+
+
+@pytest.mark.parametrize(("field", "frame", "value", "message"), [
+    ("qpos", 5, 1e30, r"clip 'walk': frame 5: root 1e\+30 m from the origin, farther than 1000 m"),
+    ("body_linvel", 7, float("inf"), r"clip 'walk': frame 7: body_linvel holds a value that is not finite"),
+])  # fmt: skip
+def test_dataset_with_values_out_of_bounds_fails_naming_clip_and_frame(
+    tmp_path: Path, walk_lib: MotionLibrary, humanoid: Humanoid, field: str, frame: int, value: float, message: str
+) -> None:
+    path = tmp_path / "motions.h5"
+    save_dataset(path, walk_lib, humanoid)
+    with h5py.File(path, "a") as f:
+        f[f"clips/walk/{field}"][frame, 0] = value
+    with pytest.raises(MotionFormatError, match=rf"{path}: {message}"):
+        load_dataset(path, humanoid)
 
 
 def test_failed_dataset_write_keeps_good_file(

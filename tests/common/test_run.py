@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import random
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -60,10 +61,13 @@ def test_save_and_resume_latest_checkpoint(tmp_path: Path) -> None:
     run.save_checkpoint({"w": torch.arange(3), "meta": {"lr": 0.1}}, iteration=5)
     run.save_checkpoint({"w": torch.arange(4), "meta": {"lr": 0.1}}, iteration=10)
     resumed = RunDir(tmp_path / "r", resume=True)
-    state = resumed.load_latest_checkpoint()
+    path, state, passed_over = resumed.load_latest_checkpoint()
+    assert path == run.checkpoint_path(10) and passed_over == []
     assert state["iteration"] == 10
     assert torch.equal(state["w"], torch.arange(4))
-    assert _ckpt_names(run) == ["ckpt_00000005.pt", "ckpt_00000010.pt", "latest.pt"]
+    assert _ckpt_names(run) == ["ckpt_00000005.pt", "ckpt_00000010.pt", "latest.json"]
+    pointer = json.loads(run.pointer_path.read_text())
+    assert pointer["latest"] == "ckpt_00000010.pt" and sorted(pointer["checkpoints"]) == _ckpt_names(run)[:2]
     with pytest.raises(ValueError, match="state\\['iteration'\\] = 3"):
         run.save_checkpoint({"iteration": 3}, iteration=4)
 
@@ -78,12 +82,14 @@ def test_failed_save_keeps_previous_checkpoint_and_leaves_no_temp_file(
         Path(f).write_bytes(b"half a checkpoint")
         raise OSError("disk full")
 
+    before = {name: (run.checkpoint_dir / name).read_bytes() for name in _ckpt_names(run)}
     monkeypatch.setattr(torch, "save", broken_save)
     with pytest.raises(OSError, match="disk full"):
         run.save_checkpoint({"w": torch.zeros(2)}, iteration=2)
     monkeypatch.undo()
-    assert _ckpt_names(run) == ["ckpt_00000001.pt", "latest.pt"]
-    state = RunDir(run.path, resume=True).load_latest_checkpoint()
+    assert {name: (run.checkpoint_dir / name).read_bytes() for name in _ckpt_names(run)} == before
+    assert _ckpt_names(run) == ["ckpt_00000001.pt", "latest.json"]
+    path, state, _ = RunDir(run.path, resume=True).load_latest_checkpoint()
     assert state["iteration"] == 1 and torch.equal(state["w"], torch.ones(2))
 
 
@@ -91,26 +97,31 @@ def test_keeps_newest_k_numbered_checkpoints(tmp_path: Path) -> None:
     run = RunDir(tmp_path / "r", resume=False, keep_checkpoints=2)
     for it in (100, 200, 300, 400):
         run.save_checkpoint({"x": it}, iteration=it)
-    assert _ckpt_names(run) == ["ckpt_00000300.pt", "ckpt_00000400.pt", "latest.pt"]
+    assert _ckpt_names(run) == ["ckpt_00000300.pt", "ckpt_00000400.pt", "latest.json"]
     assert [it for it, _ in run.numbered_checkpoints()] == [300, 400]
-    assert run.load_latest_checkpoint()["x"] == 400
+    assert sorted(json.loads(run.pointer_path.read_text())["checkpoints"]) == ["ckpt_00000300.pt", "ckpt_00000400.pt"]
+    assert run.load_latest_checkpoint()[1]["x"] == 400
     with pytest.raises(ValueError, match="keep_checkpoints"):
         RunDir(tmp_path / "k", resume=False, keep_checkpoints=0)
 
 
-def test_newest_numbered_checkpoint_wins_over_stale_latest(tmp_path: Path) -> None:
+def test_newest_numbered_checkpoint_wins_over_a_stale_pointer_and_a_legacy_latest_is_read(tmp_path: Path) -> None:
     run = RunDir(tmp_path / "r", resume=False)
     run.save_checkpoint({"x": 1}, iteration=1)
-    latest_of_1 = run.latest_path.read_bytes()
+    pointer_of_1 = run.pointer_path.read_bytes()
     run.save_checkpoint({"x": 2}, iteration=2)
-    # As if the process died after writing ckpt 2 but before relinking latest.pt.
-    run.latest_path.unlink()
-    run.latest_path.write_bytes(latest_of_1)
+    # As if the process died after writing ckpt 2 but before writing latest.json.
+    run.pointer_path.write_bytes(pointer_of_1)
     assert run.latest_checkpoint_path() == run.checkpoint_path(2)
-    assert RunDir(run.path, resume=True).load_latest_checkpoint()["x"] == 2
+    assert RunDir(run.path, resume=True).load_latest_checkpoint()[1]["x"] == 2
+    # A run directory of an earlier version: only the hard link latest.pt (a copy here) to a pruned checkpoint.
+    legacy = run.checkpoint_dir / "latest.pt"
+    shutil.copyfile(run.checkpoint_path(1), legacy)
     for _, path in run.numbered_checkpoints():
         path.unlink()
-    assert RunDir(run.path, resume=True).load_latest_checkpoint()["x"] == 1
+    assert RunDir(run.path, resume=True).load_latest_checkpoint()[:2] == (legacy, {"x": 1, "iteration": 1})
+    run.save_checkpoint({"x": 3}, iteration=3)  # supersedes the stale legacy copy, which goes
+    assert _ckpt_names(run) == ["ckpt_00000003.pt", "latest.json"]
 
 
 def test_check_compatible_lists_every_difference(tmp_path: Path) -> None:
@@ -144,7 +155,7 @@ def test_rng_state_round_trip_through_checkpoint(tmp_path: Path) -> None:
     expected = _draw(np_rng)
     _draw(np_rng)  # move every generator further on before restoring
     other_rng = np.random.default_rng(99)
-    set_rng_state(run.load_latest_checkpoint()["rng"], other_rng)
+    set_rng_state(run.load_latest_checkpoint()[1]["rng"], other_rng)
     assert _draw(other_rng) == expected
 
 
@@ -156,7 +167,10 @@ def test_write_run_info_records_machine_and_resumes(tmp_path: Path) -> None:
     assert saved["seed"] == 7 and saved["torch"] == torch.__version__ and saved["numpy"] == np.__version__
     assert saved["torch_threads"] == torch.get_num_threads() and isinstance(saved["cpu"], str)
     run.save_checkpoint({}, iteration=1)
-    RunDir(run.path, resume=True).write_run_info({"seed": 8})
+    resuming = RunDir(run.path, resume=True)
+    resuming.write_run_info({"seed": 8})
+    assert "resumes" not in json.loads(run.run_info_path.read_text())  # not before the checkpoint is restored
+    resuming.confirm_resume([])
     resumed = json.loads(run.run_info_path.read_text())
     assert resumed["seed"] == 7 and [r["seed"] for r in resumed["resumes"]] == [8]
 

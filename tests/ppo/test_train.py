@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ import torch
 from common.config import load_config
 from common.humanoid import Humanoid
 from common.motion_dataset import load_motions
+from common.run import read_checkpoint
 from ppo.config import PPOTrackerConfig
 from ppo.learner import PPOLearner
 from ppo.train import main
@@ -24,7 +26,7 @@ def _run(out: Path, *extra: str) -> None:
 
 
 def _weights(out: Path) -> dict[str, torch.Tensor]:
-    return torch.load(out / "checkpoints" / "latest.pt", weights_only=False)["learner"]["net"]
+    return read_checkpoint(out)[1]["learner"]["net"]
 
 
 def _records(out: Path) -> list[dict]:
@@ -48,7 +50,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 def test_debug_run_trains_checkpoints_and_evaluates(runs: dict[str, Path]) -> None:
     run = runs["straight"]
     assert (run / "config.yaml").is_file() and (run / "run_info.json").is_file()
-    assert (run / "checkpoints" / "ckpt_00000006.pt").is_file() and (run / "checkpoints" / "latest.pt").is_file()
+    assert (run / "checkpoints" / "ckpt_00000006.pt").is_file() and (run / "checkpoints" / "latest.json").is_file()
     records = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     last = records[-1]
     assert last["iteration"] == 6 and last["samples"] == 6 * 64
@@ -58,7 +60,7 @@ def test_debug_run_trains_checkpoints_and_evaluates(runs: dict[str, Path]) -> No
                 "reward/pose", "charts/mean_reward", "charts/action_std", "charts/clip_weight_max",
                 "perf/samples_per_s", "perf/gym_share", "perf/update_share"):  # fmt: skip
         assert key in logged, key
-    state = torch.load(run / "checkpoints" / "latest.pt", weights_only=False)["learner"]
+    state = read_checkpoint(run)[1]["learner"]
     assert state["normalizer"]["count"] == 6 * 64  # the normaliser's statistics are saved with the checkpoint
     assert state["motion_weights"]["failure_rate"].shape == (1,)
 
@@ -106,3 +108,44 @@ def test_nan_loss_is_skipped_and_the_weights_restored() -> None:
         assert torch.isfinite(learner.net.critic[0].weight[0, 0])
     finally:
         learner.close()
+
+
+def test_a_truncated_newest_checkpoint_resumes_from_the_previous_one_exactly(
+    runs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = tmp_path / "damaged"
+    shutil.copytree(runs["resumed"], run)
+    newest = run / "checkpoints" / "ckpt_00000006.pt"
+    data = newest.read_bytes()
+    newest.write_bytes(data[: len(data) // 3])  # a partial copy
+    capsys.readouterr()
+    _run(run, "--resume", "--max-iterations", "6")
+    err = capsys.readouterr().err.splitlines()
+    assert f"warning: {newest}: truncated or damaged (PytorchStreamReader failed reading zip archive: failed finding " \
+           "central directory); passed over" in err  # fmt: skip
+    assert f"resuming from {run / 'checkpoints' / 'ckpt_00000004.pt'} (iteration 4)" in err
+    assert f"warning: {newest} kept as ckpt_00000006.pt.damaged" in err
+    assert (run / "checkpoints" / "ckpt_00000006.pt.damaged").read_bytes() == data[: len(data) // 3]
+    for name, value in _weights(runs["straight"]).items():  # iterations 5 and 6 again, bit for bit
+        torch.testing.assert_close(_weights(run)[name], value, rtol=0, atol=0, msg=name)
+    assert _records(run) == _records(runs["straight"])
+
+
+def test_a_checkpoint_that_cannot_be_written_ends_the_run_in_one_line_and_keeps_the_last(
+    runs: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    run = tmp_path / "full"
+    shutil.copytree(runs["straight"], run)
+    before = {p.name: p.read_bytes() for p in (run / "checkpoints").iterdir()}
+
+    def disk_full(obj: object, f: str, *args: object, **kwargs: object) -> None:
+        Path(f).write_bytes(b"\0" * 1000)
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(torch, "save", disk_full)
+    with pytest.raises(SystemExit) as info:
+        _run(run, "--resume", "--max-iterations", "8")
+    assert str(info.value) == (f"error: cannot write the checkpoint of iteration 8 in {run / 'checkpoints'}: No space "
+                               "left on device; the checkpoints already there are intact (continue with --resume once "
+                               "it can be written)")  # fmt: skip
+    assert {p.name: p.read_bytes() for p in (run / "checkpoints").iterdir()} == before

@@ -14,6 +14,7 @@ import torch
 from common.config import load_config
 from common.humanoid import Humanoid
 from common.logs import read_metrics
+from common.run import read_checkpoint
 from supertrack.config import SuperTrackConfig
 from supertrack.export import load_eval_policy
 from supertrack.train import build_parser, run
@@ -46,7 +47,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 def test_debug_run_writes_config_metrics_checkpoint_and_evaluates(runs: dict[str, Path]) -> None:
     a = runs["a"]
-    assert (a / "config.yaml").is_file() and (a / "checkpoints" / "latest.pt").is_file()
+    assert (a / "config.yaml").is_file() and (a / "checkpoints" / "latest.json").is_file()
     records = read_metrics(a / "metrics.jsonl")
     final = records[-1]
     assert final["iteration"] == 6
@@ -56,7 +57,7 @@ def test_debug_run_writes_config_metrics_checkpoint_and_evaluates(runs: dict[str
     losses = _line(records, 6, "losses/policy")
     assert math.isfinite(losses["losses/world_model"]) and math.isfinite(losses["losses/policy"])
     assert losses["perf/samples_per_s"] > 0.0 and "perf/world_model_step_s" in losses
-    state = torch.load(a / "checkpoints" / "latest.pt", weights_only=False)
+    state = read_checkpoint(a)[1]
     learner = state["learner"]
     for key in ("world_model", "policy", "world_optimizer", "policy_optimizer", "gym", "train_buffer", "val_buffer"):
         assert key in learner
@@ -69,7 +70,7 @@ def test_same_seed_gives_identical_runs(runs: dict[str, Path]) -> None:
 
 
 def test_resume_continues_exactly(runs: dict[str, Path]) -> None:
-    a, b = (torch.load(runs[k] / "checkpoints" / "latest.pt", weights_only=False) for k in ("a", "b"))
+    a, b = (read_checkpoint(runs[k])[1] for k in ("a", "b"))
     assert a["iteration"] == b["iteration"] == 6 and a["samples"] == b["samples"]
     for net in ("world_model", "policy"):
         for name, value in a["learner"][net].items():
@@ -87,11 +88,12 @@ def test_resume_with_another_config_fails_clearly(runs: dict[str, Path]) -> None
 def test_resume_from_a_damaged_checkpoint_names_it_and_keeps_it(runs: dict[str, Path], tmp_path: Path) -> None:
     run = tmp_path / "damaged"
     shutil.copytree(runs["b"], run)
-    path = sorted((run / "checkpoints").glob("ckpt_*.pt"))[-1]  # the newest numbered one is read first
-    state = torch.load(path, weights_only=False)
+    path, state = read_checkpoint(run)  # the newest numbered one is read first
     rows = state["learner"]["train_buffer"]["rows"]
     rows["sim"] = rows["sim"][:, :, :3]
     torch.save(state, path)
+    # Without latest.json's digests the edited file reads (with them it would be passed over as damaged).
+    (run / "checkpoints" / "latest.json").unlink()
     before = path.read_bytes()
     with pytest.raises(SystemExit, match=rf"(?s)checkpoint .*{path.name}: cannot restore the learner: .*field 'sim'"):
         _train(run, "--resume")
@@ -119,17 +121,17 @@ def test_clip_weights_reach_the_gym_and_a_wrong_clip_name_fails_with_the_file_an
     assert not (tmp_path / "x").exists()  # refused before the run directory is made: a corrected retry can use it
     weights = "collect.clip_weights={walk: 10}"
     _train(tmp_path / "y", "--motions", "walk", "run", "--max-iterations", "1", "--set", weights)
-    gym = torch.load(tmp_path / "y" / "checkpoints" / "latest.pt", weights_only=False)["learner"]["gym"]
+    gym = read_checkpoint(tmp_path / "y")[1]["learner"]["gym"]
     np.testing.assert_array_equal(gym["clip_weights"], [10.0, 1.0])
 
 
 def test_init_from_starts_a_new_run_from_another_runs_networks(runs: dict[str, Path], tmp_path: Path) -> None:
-    source = torch.load(runs["a"] / "checkpoints" / "latest.pt", weights_only=False)
+    source = read_checkpoint(runs["a"])[1]
     _train(tmp_path / "ft", "--motions", "run", "--init-from", str(runs["a"]), "--max-iterations", "2",
            "--set", "world_model.lr=0", "--set", "policy.lr=0")  # fmt: skip
     info = json.loads((tmp_path / "ft" / "run_info.json").read_text())
     assert info["init_from"].endswith("ckpt_00000006.pt") and info["init_iteration"] == 6
-    tuned = torch.load(tmp_path / "ft" / "checkpoints" / "latest.pt", weights_only=False)
+    tuned = read_checkpoint(tmp_path / "ft")[1]
     assert tuned["iteration"] == 2  # a new run: its own counters
     for net in ("world_model", "policy"):  # learning rate 0: the weights and normalisers are the source's, unchanged
         for k, v in source["learner"][net].items():
@@ -147,7 +149,7 @@ def test_init_from_a_checkpoint_that_does_not_fit_is_refused_before_anything_is_
     runs: dict[str, Path], tmp_path: Path, extra: tuple[str, ...], message: str
 ) -> None:
     with pytest.raises(SystemExit, match=message):
-        _train(tmp_path / "ft", "--init-from", str(runs["a"] / "checkpoints" / "latest.pt"), *extra)
+        _train(tmp_path / "ft", "--init-from", str(runs["a"] / "checkpoints" / "ckpt_00000006.pt"), *extra)
     assert not (tmp_path / "ft").exists()
 
 
@@ -161,8 +163,8 @@ def test_init_from_something_that_is_not_a_supertrack_checkpoint_names_it(tmp_pa
 
 
 def test_export_loads_the_averaged_policy_that_the_trainer_evaluated(runs: dict[str, Path]) -> None:
-    checkpoint = runs["a"] / "checkpoints" / "latest.pt"
-    saved = torch.load(checkpoint, weights_only=False)["learner"]
+    checkpoint, state = read_checkpoint(runs["a"])
+    saved = state["learner"]
     humanoid = Humanoid(load_config(SuperTrackConfig, runs["a"] / "config.yaml").gym.physics)
     for average, weights in ((None, saved["policy_average"]["module"]), (True, saved["policy_average"]["module"]),
                              (False, saved["policy"])):  # fmt: skip
@@ -187,4 +189,4 @@ def test_help_explains_every_option() -> None:
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU")
 def test_debug_run_on_cuda(tmp_path: Path) -> None:
     _train(tmp_path / "gpu", "--device", "cuda", "--max-iterations", "3")
-    assert (tmp_path / "gpu" / "checkpoints" / "latest.pt").is_file()
+    assert (tmp_path / "gpu" / "checkpoints" / "latest.json").is_file()

@@ -1,0 +1,195 @@
+"""Tests of common.checkpoint: only tensors, arrays and plain values are read; damage is found and passed over."""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import re
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from common.checkpoint import CheckpointError, check_plain, load_checkpoint_file
+from common.run import RunDir, load_newest_checkpoint, read_checkpoint
+
+
+class _WritesAMarker:
+    """Unpickling this object calls ``open(marker, "w")``: the way a pickle runs code of its author's choosing."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self) -> tuple[Any, tuple[str, str]]:
+        return (open, (str(self.marker), "w"))
+
+
+def _state(x: float) -> dict[str, Any]:
+    """Every kind of value a training checkpoint holds (RNG states as numpy and python give them)."""
+    gen = np.random.default_rng(3)
+    return {
+        "w": torch.full((2, 3), x), "buffer": {"sim": np.arange(6, dtype=np.float32).reshape(2, 3),
+                                               "done": np.array([True, False]), "count": np.int64(7)},
+        "rng": {"numpy": gen.bit_generator.state, "python": (3, tuple(range(5)), None), "torch": torch.get_rng_state()},
+        "names": ["walk", "run"], "lr": 1e-3, "none": None,
+    }  # fmt: skip
+
+
+def test_a_state_of_tensors_arrays_and_plain_values_round_trips_exactly(tmp_path: Path) -> None:
+    run = RunDir(tmp_path / "r", resume=False)
+    path = run.save_checkpoint(_state(1.5), iteration=1)
+    got = load_checkpoint_file(path)
+    want = _state(1.5)
+    assert torch.equal(got["w"], want["w"]) and torch.equal(got["rng"]["torch"], want["rng"]["torch"])
+    np.testing.assert_array_equal(got["buffer"]["sim"], want["buffer"]["sim"])
+    assert got["buffer"]["sim"].dtype == np.float32 and got["buffer"]["done"].dtype == np.bool_
+    assert got["buffer"]["count"] == 7 and got["rng"]["numpy"] == want["rng"]["numpy"]
+    assert got["rng"]["python"] == want["rng"]["python"] and got["names"] == ["walk", "run"] and got["none"] is None
+
+
+@pytest.mark.parametrize(("value", "where"), [
+    ({"a": {"b": object()}}, r"state\.a\.b is a builtins\.object"),
+    ({"a": [1, np.array(["x"])]}, r"state\.a\[1\]: numpy <U1 values"),
+    ({"a": {1.5: 2}}, r"state\.a: key 1\.5 is a float"),
+    ({"gen": np.random.default_rng(0)}, r"state\.gen is a numpy\.random\._generator\.Generator"),
+])  # fmt: skip
+def test_saving_anything_else_is_refused_naming_the_entry_and_writes_nothing(
+    tmp_path: Path, value: dict[str, Any], where: str
+) -> None:
+    with pytest.raises(TypeError, match=where):
+        check_plain(value)
+    run = RunDir(tmp_path / "r", resume=False)
+    with pytest.raises(TypeError, match=where):
+        run.save_checkpoint(value, iteration=1)
+    assert list(run.checkpoint_dir.iterdir()) == []
+
+
+def test_a_checkpoint_whose_pickle_would_run_code_is_refused_and_nothing_runs(tmp_path: Path) -> None:
+    marker = tmp_path / "marker"
+    evil = tmp_path / "evil.pt"
+    torch.save({"meta": {"learner": "ppo"}, "learner": _WritesAMarker(marker)}, evil)
+    with pytest.raises(CheckpointError, match=rf"{evil}: refused, not opened: .*GLOBAL (io|builtins)\.open"):
+        load_checkpoint_file(evil)
+    # A bare pickle (not torch's zip format) is refused the same way.
+    legacy = tmp_path / "legacy.pt"
+    legacy.write_bytes(pickle.dumps({"x": _WritesAMarker(marker)}))
+    with pytest.raises(CheckpointError, match=rf"{legacy}: refused, not opened"):
+        load_checkpoint_file(legacy)
+    assert not marker.exists()
+
+
+@pytest.mark.parametrize(("damage", "problem"), [
+    (lambda b: b[: len(b) // 2], r"truncated or damaged \(PytorchStreamReader failed reading zip archive"),
+    (lambda b: b"", r"truncated or damaged \(EOFError\)"),
+    (lambda b: b"not a checkpoint at all\n", r"refused, not opened: not a checkpoint as torch\.save writes them"),
+])  # fmt: skip
+def test_a_damaged_newest_checkpoint_is_passed_over_naming_it_and_the_problem(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: Any, problem: str
+) -> None:
+    run = RunDir(tmp_path / "r", resume=False)
+    run.save_checkpoint(_state(1.0), iteration=1)
+    newest = run.save_checkpoint(_state(2.0), iteration=2)
+    newest.write_bytes(damage(newest.read_bytes()))
+    path, state, passed_over = load_newest_checkpoint(run.checkpoint_dir)
+    assert path == run.checkpoint_path(1) and passed_over == [newest]
+    assert torch.equal(state["w"], torch.full((2, 3), 1.0))
+    (line,) = capsys.readouterr().err.splitlines()
+    assert re.fullmatch(rf"warning: {re.escape(str(newest))}: {problem}.*; passed over", line)
+
+
+def test_bits_flipped_inside_a_tensor_are_found_by_the_recorded_digest(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = RunDir(tmp_path / "r", resume=False)
+    run.save_checkpoint(_state(1.0), iteration=1)
+    newest = run.save_checkpoint(_state(2.0), iteration=2)
+    data = bytearray(newest.read_bytes())
+    at = data.find(np.full(6, 2.0, dtype=np.float32).tobytes())  # the tensor w's 6 float32s, stored raw in the zip
+    assert at > 0
+    data[at + 1] ^= 0x01
+    newest.write_bytes(bytes(data))
+    assert load_checkpoint_file(newest)["w"][0, 0] != 2.0  # without the digest, the changed value reads silently
+    path, _, _ = load_newest_checkpoint(run.checkpoint_dir)
+    assert path == run.checkpoint_path(1)
+    assert capsys.readouterr().err == (f"warning: {newest}: damaged: its SHA-256 differs from the one recorded in "
+                                       "latest.json when it was written; passed over\n")  # fmt: skip
+
+
+def test_a_damaged_pointer_leaves_the_checkpoints_usable(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    run = RunDir(tmp_path / "r", resume=False)
+    run.save_checkpoint(_state(1.0), iteration=1)
+    run.pointer_path.write_text('{"latest": "ckpt_0000', encoding="utf-8")
+    path, state, _ = load_newest_checkpoint(run.checkpoint_dir)
+    assert path == run.checkpoint_path(1) and torch.equal(state["w"], torch.full((2, 3), 1.0))
+    assert capsys.readouterr().err.startswith(f"warning: {run.pointer_path}: unreadable")
+    run.save_checkpoint(_state(2.0), iteration=2)  # rewritten whole
+    assert json.loads(run.pointer_path.read_text())["latest"] == "ckpt_00000002.pt"
+
+
+def test_no_intact_checkpoint_lists_every_problem(tmp_path: Path) -> None:
+    run = RunDir(tmp_path / "r", resume=False)
+    for it in (1, 2):
+        run.save_checkpoint(_state(it), iteration=it).write_bytes(b"")
+    with pytest.raises(CheckpointError, match=r"no intact checkpoint \(.*ckpt_00000002\.pt: .*; .*ckpt_00000001\.pt"):
+        load_newest_checkpoint(run.checkpoint_dir)
+
+
+def test_a_write_that_fails_midway_keeps_the_previous_checkpoint_and_pointer(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    run = RunDir(tmp_path / "r", resume=False)
+    run.save_checkpoint(_state(1.0), iteration=1)
+    before = {p.name: p.read_bytes() for p in run.checkpoint_dir.iterdir()}
+    real_save = torch.save
+
+    def disk_full(obj: Any, f: Any, *args: Any, **kwargs: Any) -> None:
+        real_save(obj, f, *args, **kwargs)
+        with open(f, "r+b") as out:  # half of it made it to disk
+            out.truncate(os.path.getsize(f) // 2)
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(torch, "save", disk_full)
+    with pytest.raises(OSError, match="No space left"):
+        run.save_checkpoint(_state(2.0), iteration=2)
+    assert {p.name: p.read_bytes() for p in run.checkpoint_dir.iterdir()} == before  # no partial file either
+    monkeypatch.undo()
+    assert read_checkpoint(run.path)[0] == run.checkpoint_path(1)
+
+
+def test_read_checkpoint_names_what_is_not_a_checkpoint(tmp_path: Path) -> None:
+    with pytest.raises(CheckpointError, match=r"nowhere: no such checkpoint file or run directory"):
+        read_checkpoint(tmp_path / "nowhere")
+    with pytest.raises(CheckpointError, match=r": not a run directory \(no checkpoints/\)"):
+        read_checkpoint(tmp_path)
+    torch.save([1, 2], tmp_path / "list.pt")
+    with pytest.raises(CheckpointError, match=r"list\.pt: holds a list, not a checkpoint's dict"):
+        read_checkpoint(tmp_path / "list.pt")
+
+
+def test_any_damage_to_a_checkpoint_reads_or_is_refused_naming_the_file(tmp_path: Path) -> None:
+    path = RunDir(tmp_path / "r", resume=False).save_checkpoint(_state(1.0), iteration=1)
+    good = path.read_bytes()
+    with zipfile.ZipFile(path) as z:
+        pickle_size = next(i for i in z.infolist() if i.filename.endswith("data.pkl")).file_size
+    start = good.index(b"\x80\x02")  # torch writes data.pkl first, with pickle protocol 2 (opcode PROTO 2)
+    rng = np.random.default_rng(0)
+    seen = set()
+    for trial in range(300):  # cut short, or one byte of the pickle changed: what disks and partial copies do
+        data = bytearray(good)
+        if trial % 10 == 0:
+            data = data[: rng.integers(len(data))]
+        else:
+            data[start + rng.integers(pickle_size)] = rng.integers(256)
+        bad = tmp_path / "bad.pt"
+        bad.write_bytes(bytes(data))
+        try:
+            load_checkpoint_file(bad)
+        except CheckpointError as e:
+            assert str(e).startswith(f"{bad}: ")
+            seen.add(str(e).split(" (")[1].split(" ")[0] if " (" in str(e) else str(e))
+    # Torch's own errors for these are of many types (RuntimeError, OSError, KeyError, IndexError, AssertionError...).
+    assert len(seen) >= 4, seen
