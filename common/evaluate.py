@@ -17,6 +17,10 @@ over the episodes that succeeded, to be read with the success rate (NaN for a cl
 averages the clips that have one). ``full_horizon=False`` is the earlier protocol: an episode ends at its first
 failure and only the frames before it are scored (a method can look better there by failing sooner).
 
+**Robustness** (``pushes``): the same protocol with an impulse on the pelvis at fixed frames of every episode
+(:class:`common.pushes.PushConfig`: by default 30 N s, horizontal, in a seeded random direction, at frame 60 and
+every 2 s after), applied between two control steps so that the policy sees it.
+
 A policy is any callable from the gym's :class:`~common.gym.StepResult` to PD targets (N, nu); learners pass their
 deterministic (mean, no noise) policy.
 """
@@ -32,6 +36,7 @@ from common import metrics as M
 from common.gym import GymConfig, StepResult, TrackingGym
 from common.humanoid import Humanoid
 from common.motion_library import CharacterState, MotionLibrary
+from common.pushes import PushConfig, push_schedule
 from common.rewards import TerminationConfig
 
 Policy = Callable[[StepResult], np.ndarray]
@@ -51,6 +56,7 @@ class EvalConfig:
         termination: The rule that marks an episode failed.
         full_horizon: Score every episode over its whole horizon, failed or not (see the module docstring); False
             ends an episode at its first failure and scores only the frames before it.
+        pushes: The robustness protocol's impulses on the pelvis (:mod:`common.pushes`); None: no pushes.
         rsi_lift: Start a character whose reference pose pushes a body into the ground lifted clear of it
             (:class:`common.gym.GymConfig`); the learners' gyms must use the same setting.
     """
@@ -63,6 +69,7 @@ class EvalConfig:
         default_factory=lambda: TerminationConfig(max_episode_frames=None, grace_frames=48, head_height_error=0.25)
     )
     full_horizon: bool = True
+    pushes: PushConfig | None = None
     rsi_lift: bool = False
 
     def __post_init__(self) -> None:
@@ -141,7 +148,11 @@ def evaluate(
         frozen = np.zeros(n, dtype=bool)  # blew up: scored in its last state before that from then on
         held = result.sim
         length = np.zeros(n, dtype=np.int64)
+        push_frames, impulses = push_schedule(config.pushes, n, horizon) if config.pushes else (np.zeros(0), None)
         for t in range(horizon):
+            if t in push_frames:  # between steps, so the policy sees the push; frozen characters are left alone
+                hit = np.flatnonzero((t < episode_max) & ~frozen)
+                gym.push(hit, impulses[int(np.searchsorted(push_frames, t)), hit])
             before = result.sim
             result = gym.step(policy(result), autoreset=False)
             newly = result.diverged & ~frozen

@@ -12,11 +12,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import mujoco
 import numpy as np
 
 from common.humanoid import BodyGeometry, Humanoid, PhysicsConfig
 from common.kinematics import ForwardKinematics
 from common.motion_library import CharacterState, MotionLibrary
+from common.pushes import impulse_velocity_change
 from common.rewards import RewardConfig, TerminationConfig, TrackingReward, termination
 from common.sim import BatchedSim
 
@@ -147,6 +149,7 @@ class TrackingGym:
         self._state: CharacterState | None = None
         self._ref: CharacterState | None = None
         self._ref_next: CharacterState | None = None
+        self._scratch: mujoco.MjData | None = None  # for pushes
 
     def close(self) -> None:
         self.sim.close()
@@ -322,6 +325,28 @@ class TrackingGym:
         zeros = np.zeros(self.num_envs, dtype=bool)
         return self._result(np.zeros(self.num_envs), {}, zeros, zeros.copy(), self._state, self._ref, self._ref_next,
                             self.phase(), {})  # fmt: skip
+
+    def push(self, ids: np.ndarray, impulses: np.ndarray) -> None:
+        """Applies an impulse at the pelvis of characters ``ids`` (robustness tests), between two control steps.
+
+        Their velocities jump by :func:`common.pushes.impulse_velocity_change`; the current state (``sim`` of the
+        last :class:`StepResult`) is updated in place, so the policy sees the push before its next action.
+
+        Args:
+            ids: Characters to push. Shape: (K,).
+            impulses: World-frame impulses (N s). Shape: (K, 3).
+        """
+        self._require_reset()
+        ids = np.asarray(ids, dtype=np.int64)
+        if len(ids) == 0:
+            return
+        if self._scratch is None:
+            self._scratch = mujoco.MjData(self.humanoid.model)
+        body = self.humanoid.root_index + 1  # MuJoCo's body 0 is the world
+        for i, p in zip(ids, np.asarray(impulses, dtype=np.float64), strict=True):
+            self.sim.qvel[i] += impulse_velocity_change(self.humanoid.model, self._scratch, self.sim.qpos[i],
+                                                        self.sim.qvel[i], body, p)  # fmt: skip
+        _assign(self._state, ids, self.fk(self.sim.qpos[ids].copy(), self.sim.qvel[ids].copy()))
 
     def _require_reset(self) -> None:
         if self._state is None:

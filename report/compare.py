@@ -29,9 +29,12 @@ from common.humanoid import Humanoid
 from common.motion import MotionFormatError
 from common.motion_dataset import load_motions
 from common.motion_library import MotionLibrary
+from common.pushes import PushConfig
 from report import figures, render, tables
 from report.html import markdown_to_html
 from report.runs import ReportError, Run, export_module, load_run, unique_labels
+
+PUSHES = PushConfig()  # the robustness protocol's schedule: one for every report
 
 
 @dataclass
@@ -42,6 +45,7 @@ class Report:
         runs: The runs, in command-line order.
         results: Their re-evaluations, same order.
         protocol: The evaluation protocol used for every run.
+        pushed: Their re-evaluations under pushes (the robustness protocol); empty when switched off.
         motions: The motion specs every run was evaluated on.
         notes: Warnings shown at the top of the report (mixed motion sets, physics, rendering).
         files: Paths written.
@@ -51,6 +55,7 @@ class Report:
     results: list[EvalResult]
     protocol: EvalConfig
     motions: list[str]
+    pushed: list[EvalResult] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     files: dict[str, Path] = field(default_factory=dict)
 
@@ -64,7 +69,7 @@ def _union(lists: Sequence[Sequence[str]]) -> list[str]:
 
 def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: int | None = None,
                  motions: Sequence[str] | None = None, starts: int | None = None, max_frames: int | None = None,
-                 render_clips: int = 1, do_render: bool = True) -> Report:  # fmt: skip
+                 render_clips: int = 1, do_render: bool = True, pushes: bool = True) -> Report:  # fmt: skip
     """Re-evaluates every run and writes the report into ``out``.
 
     Args:
@@ -76,6 +81,7 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
         max_frames: Steps per evaluation episode; None: the first run's protocol.
         render_clips: Clips per run drawn as filmstrips.
         do_render: False skips the filmstrips (no GL probing at all).
+        pushes: Also re-evaluate every run under the robustness protocol (:class:`common.pushes.PushConfig`).
 
     Raises:
         ReportError: On a bad run directory, an unknown learner, or motions that cannot be loaded.
@@ -105,12 +111,14 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
     except (MotionFormatError, FileNotFoundError, KeyError, ValueError) as e:
         raise ReportError(f"cannot load motions {specs}: {e}") from e
     out.mkdir(parents=True, exist_ok=True)  # only now: a refused report leaves no folder behind
-    policies, results = [], []
+    policies, results, pushed = [], [], []
     for run in runs:
         policy = export_module(run.learner).load_eval_policy(run.path, run.checkpoint, humanoid, library)
         policies.append(policy)
         results.append(evaluate(policy, library, humanoid, protocol))
-    report = Report(runs, results, protocol, specs, notes)
+        if pushes:
+            pushed.append(evaluate(policy, library, humanoid, replace(protocol, pushes=PUSHES)))
+    report = Report(runs, results, protocol, specs, pushed, notes)
     report.files["curves"] = figures.learning_curves(runs, out / "learning_curves.png")
     wm = figures.world_model_curves(runs, out / "world_model.png")
     if wm is not None:
@@ -157,8 +165,16 @@ def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]]) -> str:
     lines += ["", f"Every run re-evaluated by `common.evaluate` on motions `{', '.join(report.motions)}` "
               f"(clips: {', '.join(report.results[0].clips)}), {p.starts_per_clip} start(s) per clip, "
               f"{p.max_frames} frames per episode, seed {p.seed}. Best value of each row in bold.", ""]  # fmt: skip
+    lines += [PROTOCOL if p.full_horizon else "The runs are scored until their first failure (the earlier "
+              "protocol, `train.eval.full_horizon: false`): a method can score lower errors by failing sooner.", ""]
     lines += ["## Learning curves (from the training logs)", "", "![learning curves](learning_curves.png)", ""]
     lines += ["## Tracking metrics (re-evaluated)", "", tables.metric_tables(labels, report.results), ""]
+    if report.pushed:
+        q = PUSHES
+        lines += ["## Robustness: pushes on the pelvis", "", f"The same protocol with an impulse of {q.impulse:g} N s "
+                  f"on the pelvis, horizontal, in a seeded random direction (seed {q.seed}), at frame "
+                  f"{q.first_frame} of every episode and every {q.interval} frames after.", "",
+                  tables.robustness_table(labels, report.pushed), ""]  # fmt: skip
     spread = tables.spread_table(report.runs, report.results)
     if spread:
         lines += ["## Spread over seeds (mean ± std of the overall numbers)", "", spread, ""]
@@ -180,6 +196,15 @@ def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+PROTOCOL = ("**Protocol.** Every episode plays its whole horizon (the frames above, or to a one-shot clip's end). "
+            "The failure rule (head height off by more than 25 cm after 48 frames) marks an episode failed at the "
+            "frame it first fires but does not end it: the character plays on and its error keeps counting, so "
+            "failing sooner never lowers a method's error. Survival: episodes the rule never failed; episode length: "
+            "the share of the horizon before the first failure; success (UHC/PHC): no failure and a mean body error "
+            "never above 0.5 m; `mpjpe_g_succ` / `mpjpe_l_succ`: the errors over the successful episodes only "
+            "(PHC/UHC), to be read with the success rate.")
+
+
 def _results_json(report: Report) -> dict[str, Any]:
     return {
         "motions": report.motions, "protocol": {"starts_per_clip": report.protocol.starts_per_clip,
@@ -187,8 +212,11 @@ def _results_json(report: Report) -> dict[str, Any]:
         "notes": report.notes,
         "runs": [{"label": run.label, "learner": run.learner, "path": str(run.path), "checkpoint": str(run.checkpoint),
                   "clips": res.clips, "overall": res.overall,
-                  "per_clip": {k: v.tolist() for k, v in res.per_clip.items()}}
-                 for run, res in zip(report.runs, report.results, strict=True)],
+                  "per_clip": {k: v.tolist() for k, v in res.per_clip.items()},
+                  **({"pushed": {"overall": report.pushed[i].overall,
+                                 "per_clip": {k: v.tolist() for k, v in report.pushed[i].per_clip.items()}}}
+                     if report.pushed else {})}
+                 for i, (run, res) in enumerate(zip(report.runs, report.results, strict=True))],
     }  # fmt: skip
 
 
@@ -205,6 +233,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-frames", type=int, default=None, help="steps per episode (default: first run's)")
     parser.add_argument("--render-clips", type=int, default=1, help="clips per run drawn as filmstrips")
     parser.add_argument("--no-render", action="store_true", help="skip the filmstrips")
+    parser.add_argument("--no-pushes", action="store_true",
+                        help="skip the robustness re-evaluation (pushes on the pelvis)")  # fmt: skip
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     return parser
 
@@ -214,7 +244,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     torch.set_num_threads(max(1, args.threads))
     try:
         report = build_report(args.runs, args.out, args.checkpoint, args.motions, args.starts, args.max_frames,
-                              args.render_clips, not args.no_render)  # fmt: skip
+                              args.render_clips, not args.no_render, not args.no_pushes)  # fmt: skip
     except (ReportError, ConfigError) as e:
         sys.exit(f"error: {e}")
     for label, result in zip((r.label for r in report.runs), report.results, strict=True):

@@ -73,6 +73,16 @@ def metric_tables(labels: list[str], results: list[EvalResult]) -> str:
     return "\n".join(parts)
 
 
+def robustness_table(labels: list[str], results: list[EvalResult]) -> str:
+    """Per clip and run under pushes: survival and MPJPE-g (full horizon), the mean over clips last."""
+    rows = []
+    for c, clip in enumerate(results[0].clips):
+        rows.append([f"`{clip}`", *[f"{fmt(r.per_clip['survival'][c])} / {fmt(r.per_clip['mpjpe_g'][c])}"
+                                     for r in results]])  # fmt: skip
+    rows.append(["mean", *[f"{fmt(r.overall['survival'])} / {fmt(r.overall['mpjpe_g'])}" for r in results]])
+    return table(["clip", *[f"{label}: survival / MPJPE-g (mm)" for label in labels]], rows)
+
+
 def _duration(seconds: float) -> str:
     return f"{seconds:.1f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
 
