@@ -23,7 +23,6 @@ from common.evaluate import Policy
 from common.gym import StepResult, TrackingGym
 from common.humanoid import Humanoid
 from common.motion_library import MotionLibrary
-from common.rewards import REWARD_TERMS
 from common.training import NanGuard, gym_config
 from ppo.config import PPOTrackerConfig
 from ppo.gae import gae
@@ -100,7 +99,7 @@ class PPOLearner:
         """Runs one rollout into the buffer; returns the number of samples (rollout_length x N)."""
         T, N = self.config.ppo.rollout_length, self.num_envs
         lengths, returns, failed = [], [], []
-        terms = {k: 0.0 for k in REWARD_TERMS}
+        terms = {k: 0.0 for k in self.config.gym.reward.weights}
         reward_sum = 0.0
         events: dict[str, float] = {}
         for _ in range(T):
@@ -131,7 +130,7 @@ class PPOLearner:
             failed += step.terminated[done].tolist()
             self.episode_return[done] = 0.0
             reward_sum += float(step.reward.mean())
-            for k in REWARD_TERMS:
+            for k in terms:
                 terms[k] += float(step.reward_terms[k].mean())
             for k, v in step.info.items():
                 events[k] = events.get(k, 0.0) + v
