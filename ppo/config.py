@@ -12,19 +12,20 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from common.gym import GymConfig
-from common.rewards import TerminationConfig
+from common.rewards import RewardConfig, TerminationConfig
 from common.training import TrainConfig
 
 
 def _ppo_gym() -> GymConfig:
     """PARC-style early termination (the character has failed as soon as it is far off the reference), measured
-    against the reference so that it passes every bundled clip."""
+    against the reference so that it passes every bundled clip, and PARC's reward."""
     return GymConfig(
         termination=TerminationConfig(
             max_episode_frames=300, grace_frames=0, head_height_error=None, root_pos_error=1.0,
             root_rot_error=1.5708, body_pos_error=0.5, root_height_error=0.3, fall_contact="deepmimic",
             contact_clearance=0.1,
         ),
+        reward=RewardConfig(preset="parc"),
     )  # fmt: skip
 
 

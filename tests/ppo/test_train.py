@@ -55,7 +55,8 @@ def test_debug_run_trains_checkpoints_and_evaluates(runs: dict[str, Path]) -> No
     assert 0.0 <= last["eval/survival"] <= 1.0 and np.isfinite(last["eval/mpjpe_g"])
     logged = {k for r in records for k in r}
     for key in ("losses/policy", "losses/value", "losses/entropy", "losses/approx_kl", "losses/clip_frac",
-                "reward/pose", "charts/mean_reward", "charts/action_std", "charts/clip_weight_max",
+                "reward/root_pos", "reward/body_pos", "charts/term/root_below_ref_per_1k", "charts/mean_reward",
+                "charts/action_std", "charts/clip_weight_max",
                 "perf/samples_per_s", "perf/gym_share", "perf/update_share"):  # fmt: skip
         assert key in logged, key
     state = torch.load(run / "checkpoints" / "latest.pt", weights_only=False)["learner"]
