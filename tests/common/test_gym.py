@@ -135,9 +135,12 @@ def test_truncation_at_max_frames_and_clip_end(library: MotionLibrary, humanoid:
     end = library.end_time[kick]
     gym.reset(clips=np.array([0, kick]), times=np.array([0.0, end - 3 * gym.dt]))
     flags = []
-    for _ in range(5):
+    for step in range(5):
         res = gym.step(gym.reference_targets())
         flags.append((res.truncated.tolist(), res.terminated.tolist()))
+        if step == 2:  # the kick's episode ended and was reset: final_clip/final_time still say where it was
+            assert res.final_clip[1] == kick and res.episode_frame[1] == 0
+            np.testing.assert_allclose(res.final_time, [3 * gym.dt, end])
     # The one-shot kick runs out of frames after 3 steps; the walk is cut by the 5-frame limit.
     assert flags[2] == ([False, True], [False, False])
     assert flags[4][0][0] is True
