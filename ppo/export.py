@@ -57,7 +57,15 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
     observe = Observer(cfg.observation, humanoid, library)
 
     def act(result: StepResult) -> np.ndarray:
-        norm_obs = normalizer.normalize(observe(result))
+        obs = observe(result)
+        if obs.shape[-1] != sizes["obs"]:
+            # e.g. a run from before the parc observation: its config.yaml has no observation section
+            raise ValueError(
+                f"{run_dir}/config.yaml: the '{cfg.observation.kind}' observation has {obs.shape[-1]} features, the "
+                f"policy in {checkpoint} reads {sizes['obs']} (a run with the previous observation needs "
+                f"'observation: {{kind: local}}' in its config.yaml)"
+            )
+        norm_obs = normalizer.normalize(obs)
         with torch.no_grad():
             mean = actor(torch.as_tensor(norm_obs)).double().numpy()
         if clip is not None:

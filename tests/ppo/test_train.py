@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -10,9 +11,11 @@ import pytest
 import torch
 
 from common.config import load_config
+from common.gym import GymConfig, TrackingGym
 from common.humanoid import Humanoid
 from common.motion_dataset import load_motions
 from ppo.config import PPOTrackerConfig
+from ppo.export import load_eval_policy
 from ppo.learner import PPOLearner
 from ppo.train import main
 
@@ -83,6 +86,21 @@ def test_mismatched_checkpoint_is_refused(runs: dict[str, Path], capsys: pytest.
     with pytest.raises(SystemExit, match="(?s)incompatible with the current run.*network.actor_hidden"):
         _run(runs["straight"], "--resume", "--max-iterations", "8", "--set", "network.actor_hidden=[16]")
     assert not (runs["straight"] / "checkpoints" / "ckpt_00000008.pt").exists()
+
+
+def test_export_refuses_a_policy_of_another_observation(runs: dict[str, Path], tmp_path: Path) -> None:
+    """A run's config.yaml naming another observation than its policy was trained on fails with one clear line."""
+    run = tmp_path / "run"
+    shutil.copytree(runs["straight"], run)
+    config = run / "config.yaml"
+    config.write_text(config.read_text().replace("kind: parc", "kind: local"))
+    humanoid = Humanoid()
+    library = load_motions(["walk"], humanoid)
+    policy = load_eval_policy(run, run / "checkpoints" / "latest.pt", humanoid, library)
+    gym = TrackingGym(GymConfig(num_envs=2, threads=1), library, humanoid)
+    with pytest.raises(ValueError, match="the 'local' observation has 497 features, the policy in .* reads 725"):
+        policy(gym.reset())
+    gym.close()
 
 
 def test_existing_run_needs_resume_and_unknown_keys_fail(runs: dict[str, Path], tmp_path: Path) -> None:
