@@ -71,6 +71,8 @@ class StepResult:
         final_ref_next: Reference one step after ``final_ref`` (to build the observation of ``final_sim``, e.g. for
             bootstrapping the value of a truncated episode).
         final_phase: Clip phase of ``final_sim``. Shape: (N,).
+        final_clip: Clip of ``final_sim`` (before any reset). Shape: (N,).
+        final_time: Clip time of ``final_sim`` in seconds. Shape: (N,).
         phase: Clip phase of ``sim`` in [0, 1). Shape: (N,).
         clip: Clip index of the current episode. Shape: (N,).
         time: Clip time of ``sim`` in seconds. Shape: (N,).
@@ -92,6 +94,8 @@ class StepResult:
     final_ref: CharacterState
     final_ref_next: CharacterState
     final_phase: np.ndarray
+    final_clip: np.ndarray
+    final_time: np.ndarray
     phase: np.ndarray
     clip: np.ndarray
     time: np.ndarray
@@ -251,11 +255,14 @@ class TrackingGym:
         state = self.fk(self.sim.qpos.copy(), self.sim.qvel.copy())
         ref = self._ref_next
         reward, terms = self.reward_fn(state, ref)
+        cfg = self.config.termination
         lowest = self.geometry.lowest_points(state.body_pos, state.body_rot)
-        terminated, rules = termination(self.config.termination, self.humanoid, state, ref, self.frame, lowest)
+        ref_lowest = None
+        if cfg.contact_clearance is not None and cfg.fall_contact != "off":
+            ref_lowest = self.geometry.lowest_points(ref.body_pos, ref.body_rot)
+        terminated, rules = termination(cfg, self.humanoid, state, ref, self.frame, lowest, ref_lowest)
         terminated |= diverged
         reward[diverged] = 0.0
-        cfg = self.config.termination
         truncated = np.zeros(self.num_envs, dtype=bool)
         if cfg.max_episode_frames is not None:
             truncated |= self.frame >= cfg.max_episode_frames
@@ -268,13 +275,12 @@ class TrackingGym:
         self._ref = CharacterState(**{k: v.copy() for k, v in vars(ref).items()})
         self._ref_next = self.library.query(self.clip, self.time + self.dt)
         final_ref_next = CharacterState(**{k: v.copy() for k, v in vars(self._ref_next).items()})
-        final_phase = self.phase()
+        final_phase, final_clip, final_time = self.phase(), self.clip.copy(), self.time
         done = np.flatnonzero(terminated | truncated)
         if autoreset and len(done):
             self._reset_ids(done, None, None)
-        return self._result(
-            reward, terms, terminated, truncated, final_sim, final_ref, final_ref_next, final_phase, info, diverged
-        )
+        return self._result(reward, terms, terminated, truncated, final_sim, final_ref, final_ref_next, final_phase,
+                            info, final_clip, final_time, diverged)  # fmt: skip
 
     def _result(
         self,
@@ -287,13 +293,19 @@ class TrackingGym:
         final_ref_next: CharacterState,
         final_phase: np.ndarray,
         info: dict[str, float],
+        final_clip: np.ndarray | None = None,
+        final_time: np.ndarray | None = None,
         diverged: np.ndarray | None = None,
     ) -> StepResult:
+        clip, time = self.clip.copy(), self.time
+        final_clip = clip if final_clip is None else final_clip
+        final_time = time if final_time is None else final_time
         return StepResult(
             sim=self._state, ref=self._ref, ref_next=self._ref_next, reward=reward, reward_terms=terms,
             terminated=terminated, truncated=truncated, final_sim=final_sim, final_ref=final_ref,
-            final_ref_next=final_ref_next, final_phase=final_phase, phase=self.phase(),
-            clip=self.clip.copy(), time=self.time, episode_id=self.episode_id.copy(),
+            final_ref_next=final_ref_next, final_phase=final_phase, phase=self.phase(), clip=clip, time=time,
+            final_clip=final_clip, final_time=final_time,
+            episode_id=self.episode_id.copy(),
             episode_frame=self.frame.copy(), info=info,
             diverged=np.zeros(self.num_envs, dtype=bool) if diverged is None else diverged,
         )  # fmt: skip

@@ -1,61 +1,88 @@
-"""DeepMimic tracking rewards and the termination rules, as pure functions of simulated vs reference states.
+"""The tracking reward (named terms from :mod:`common.tracking_rewards`, weighted) and the termination rules.
 
-Reward (Peng et al. 2018, DeepMimic, eq. 5-10 and its code): each term is exp(-scale * error) and the terms are
-combined as a weighted sum (``form: sum``, DeepMimic) or a product (``form: product``). Errors:
-- pose: sum_j w_j angle(q_j^sim, q_j^ref)^2 over the joints' local rotations and the root's world rotation,
-  with DeepMimic's per-joint weights normalised to sum to 1;
-- velocity: sum_j w_j |w_j^sim - w_j^ref|^2 over joint angular velocities (relative to the parent, in the parent
-  frame) and the root's world angular velocity;
-- end_effector: mean over hands and feet of |p_e - p_root|^2 difference, each in its own heading frame;
-- root: |p|^2 + 0.1 angle^2 + 0.01 |v|^2 + 0.001 |w|^2 of the root differences;
-- com: |v_com^sim - v_com^ref|^2 of the centre-of-mass velocity.
+Reward: each term is r_k = exp(-s_k * e_k) with e_k the term's error; the terms are combined as a weighted sum
+sum_k w_k r_k (``form: sum``, DeepMimic) or a weighted product prod_k r_k^w_k = exp(-sum_k w_k s_k e_k)
+(``form: product``; with weights summing to 1 a weighted geometric mean, so still in [0, 1] and 1 only at
+sim = ref). Two presets (:data:`REWARD_PRESETS`): ``deepmimic`` (Peng et al. 2018: pose, velocity, end effectors,
+root, centre of mass, summed) and ``parc`` (PARC's motion tracker documentation: world-space root position and
+rotation, body positions and rotations, joint velocities and end effectors, as a product).
+
+Termination: SuperTrack's head-height rule, PARC's distance rules and DeepMimic's fall contact; the rules
+``root_height_error`` and ``contact_clearance`` are measured against the reference, so that a clip whose reference
+lies on the ground (crawl, roll, getting up) does not end an episode that tracks it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
 from common.humanoid import Humanoid
 from common.motion_library import CharacterState
-from common.rotations import cross, quat_conj, quat_geodesic_angle, quat_mul, quat_rotate, quat_yaw
+from common.rotations import quat_geodesic_angle
+from common.tracking_rewards import REWARD_TERMS, TERM_FUNCTIONS, RewardModel
 
-REWARD_TERMS = ("pose", "velocity", "end_effector", "root", "com")
-# DeepMimic humanoid3d DiffWeight per joint (the joint's child body); hands have no joint (weight 0).
-DEEPMIMIC_BODY_WEIGHTS = {
-    "pelvis": 1.0, "torso": 0.5, "head": 0.3, "right_thigh": 0.5, "right_shin": 0.3, "right_foot": 0.2,
-    "right_upper_arm": 0.3, "right_lower_arm": 0.2, "right_hand": 0.0, "left_thigh": 0.5, "left_shin": 0.3,
-    "left_foot": 0.2, "left_upper_arm": 0.3, "left_lower_arm": 0.2, "left_hand": 0.0,
+
+@dataclass(frozen=True)
+class RewardPreset:
+    form: Literal["sum", "product"]
+    weights: dict[str, float]
+
+
+REWARD_PRESETS: dict[str, RewardPreset] = {
+    # DeepMimic's code: weights 0.5 / 0.05 / 0.15 / 0.2 / 0.1, summed.
+    "deepmimic": RewardPreset("sum", {"pose": 0.5, "velocity": 0.05, "end_effector": 0.15, "root": 0.2, "com": 0.1}),
+    # PARC's documentation: weights 0.3 / 0.2 / 0.3 / 0.1 / 0.05 / 0.05 (sum 1), as a product.
+    "parc": RewardPreset("product", {"root_pos": 0.3, "root_rot": 0.2, "body_pos": 0.3, "body_rot": 0.1,
+                                     "dof_vel": 0.05, "end_effector": 0.05}),
+}  # fmt: skip
+# k of exp(-k e) per term when the config gives none. DeepMimic's five and PARC's root_pos 10, root_rot 5, body_pos 20,
+# dof_vel 0.1 are the sources'. PARC's documentation gives none for body_rot and end_effector: body_rot takes 2,
+# DeepMimic's pose scale, the same kind of error (a mean of squared angles; 0.3 rad on every body -> 0.84);
+# end_effector is DeepMimic's term and keeps its 40 (a 10 cm error of hands and feet -> 0.67).
+DEFAULT_SCALES: dict[str, float] = {
+    "pose": 2.0, "velocity": 0.1, "end_effector": 40.0, "root": 5.0, "com": 10.0,
+    "root_pos": 10.0, "root_rot": 5.0, "body_pos": 20.0, "body_rot": 2.0, "dof_vel": 0.1,
 }  # fmt: skip
 
 
 @dataclass(frozen=True)
-class RewardTerms:
-    """One number per reward term."""
-
-    pose: float
-    velocity: float
-    end_effector: float
-    root: float
-    com: float
-
-
-@dataclass(frozen=True)
 class RewardConfig:
-    """DeepMimic's reward.
+    """The tracking reward. Fields left out (None) take the preset's values; after construction all are set.
 
     Attributes:
-        form: ``sum`` (weighted sum of exponentials, DeepMimic) or ``product`` (product of exponentials, weights
-            unused).
-        weights: Weight of each term in the sum (DeepMimic: 0.5, 0.05, 0.15, 0.2, 0.1).
-        scales: k in exp(-k * error) (DeepMimic: 2, 0.1, 40, 5, 10).
+        preset: ``deepmimic`` or ``parc`` (:data:`REWARD_PRESETS`).
+        form: ``sum`` (sum_k w_k r_k) or ``product`` (prod_k r_k^w_k).
+        weights: The terms used and their weights ({term: w}, names from
+            :data:`common.tracking_rewards.REWARD_TERMS`); replaces the preset's set of terms when given.
+        scales: k in exp(-k * error) per term; terms left out take :data:`DEFAULT_SCALES`.
     """
 
-    form: Literal["sum", "product"] = "sum"
-    weights: RewardTerms = field(default_factory=lambda: RewardTerms(0.5, 0.05, 0.15, 0.2, 0.1))
-    scales: RewardTerms = field(default_factory=lambda: RewardTerms(2.0, 0.1, 40.0, 5.0, 10.0))
+    preset: Literal["deepmimic", "parc"] = "deepmimic"
+    form: Literal["sum", "product"] | None = None
+    weights: dict[str, float] | None = None
+    scales: dict[str, float] | None = None
+
+    def __post_init__(self) -> None:
+        p = REWARD_PRESETS[self.preset]
+        weights = dict(p.weights if self.weights is None else self.weights)
+        given = dict(self.scales or {})
+        for name, table in (("weights", weights), ("scales", given)):
+            unknown = sorted(set(table) - set(REWARD_TERMS))
+            if unknown:
+                raise ValueError(f"{name}: unknown reward terms {unknown} (known: {list(REWARD_TERMS)})")
+            if any(v < 0 for v in table.values()):
+                raise ValueError(f"{name} must be non-negative, got {table}")
+        if not weights:
+            raise ValueError("weights: at least one reward term is needed")
+        extra = sorted(set(given) - set(weights))
+        if extra:
+            raise ValueError(f"scales: terms {extra} have no weight (weighted terms: {list(weights)})")
+        object.__setattr__(self, "form", self.form or p.form)
+        object.__setattr__(self, "weights", weights)
+        object.__setattr__(self, "scales", {k: given.get(k, DEFAULT_SCALES[k]) for k in weights})
 
 
 @dataclass(frozen=True)
@@ -69,9 +96,13 @@ class TerminationConfig:
         root_pos_error: Terminate when the root is farther than this from the reference root (m).
         root_rot_error: Terminate when the root rotation differs by more than this (rad).
         body_pos_error: Terminate when any body is farther than this from its reference (m).
-        min_root_height: Terminate when the root is lower than this (m).
+        min_root_height: Terminate when the root is lower than this (m, absolute: the reference of crawl, roll and
+            the get-ups breaks 0.3 m in 25-55 % of their frames).
+        root_height_error: Terminate when the root is more than this below the reference root (m).
         fall_contact: Terminate on ground contact of ``deepmimic`` (pelvis, torso, head) or ``non_foot`` bodies.
         contact_height: A body whose lowest point is below this height (m) touches the ground.
+        contact_clearance: When set, a fall contact counts only for bodies whose reference lowest point is above
+            this height (m) at that frame: bodies the reference itself puts on (or near) the ground may touch it.
         clip_end: Truncate when a one-shot clip has no frame left.
     """
 
@@ -82,97 +113,38 @@ class TerminationConfig:
     root_rot_error: float | None = None
     body_pos_error: float | None = None
     min_root_height: float | None = None
+    root_height_error: float | None = None
     fall_contact: Literal["off", "deepmimic", "non_foot"] = "off"
     contact_height: float = 0.005
+    contact_clearance: float | None = None
     clip_end: bool = True
 
 
 class TrackingReward:
-    """Computes the reward terms for N characters. Holds only model constants (weights, masses, indices)."""
+    """Computes the weighted reward and its named terms for N characters (holds only model constants)."""
 
     def __init__(self, humanoid: Humanoid, config: RewardConfig) -> None:
         self.config = config
-        w = np.array([DEEPMIMIC_BODY_WEIGHTS[b] for b in humanoid.body_names])
-        self.body_weights = w / w.sum()
-        self.parent = humanoid.parent_index
-        self.child = np.flatnonzero(self.parent >= 0)
-        self.root = humanoid.root_index
-        self.effectors = humanoid.end_effector_indices
-        m = humanoid.model
-        self.mass = np.asarray(m.body_mass[1:])
-        self.com_offset = np.asarray(m.body_ipos[1:])  # body-frame centre of mass; inertial frames are not rotated
-
-    def _relative(self, s: CharacterState) -> tuple[np.ndarray, np.ndarray]:
-        """Joint-local rotations (children; the root keeps its world rotation), shape (N, B, 4), and joint angular
-        velocities relative to the parent in the parent frame (the root's in world), shape (N, B, 3)."""
-        inv_parent = quat_conj(s.body_rot[:, self.parent[self.child]])
-        rot = s.body_rot.copy()
-        rot[:, self.child] = quat_mul(inv_parent, s.body_rot[:, self.child])
-        angvel = s.body_angvel.copy()
-        angvel[:, self.child] = quat_rotate(
-            inv_parent, s.body_angvel[:, self.child] - s.body_angvel[:, self.parent[self.child]]
-        )
-        return rot, angvel
-
-    def com_velocity(self, s: CharacterState) -> np.ndarray:
-        """Centre-of-mass velocity: sum_b m_b (v_b + w_b x R_b c_b) / M. Shape: (N, 3)."""
-        v = s.body_linvel + cross(s.body_angvel, quat_rotate(s.body_rot, self.com_offset))
-        return np.einsum("b,nbk->nk", self.mass, v) / self.mass.sum()
-
-    def _heading_local_effectors(self, s: CharacterState) -> np.ndarray:
-        """End effectors relative to the root, in the root's heading frame (rotated by -yaw about z). (N, E, 3)."""
-        rel = s.body_pos[:, self.effectors] - s.body_pos[:, self.root, None]
-        yaw = quat_yaw(s.body_rot[:, self.root])[:, None]
-        c, sn = np.cos(yaw), np.sin(yaw)
-        out = rel.copy()
-        out[..., 0] = c * rel[..., 0] + sn * rel[..., 1]
-        out[..., 1] = -sn * rel[..., 0] + c * rel[..., 1]
-        return out
+        self.model = RewardModel.from_humanoid(humanoid)
 
     def errors(self, sim: CharacterState, ref: CharacterState) -> dict[str, np.ndarray]:
-        """Squared tracking errors per term. Each: (N,)."""
-        rot_s, angvel_s = self._relative(sim)
-        rot_r, angvel_r = self._relative(ref)
-        pose = _angle(rot_s, rot_r) ** 2
-        vel = np.sum((angvel_s - angvel_r) ** 2, axis=-1)
-        ee = self._heading_local_effectors(sim) - self._heading_local_effectors(ref)
-        r = self.root
-        root = (
-            np.sum((sim.body_pos[:, r] - ref.body_pos[:, r]) ** 2, axis=-1)
-            + 0.1 * pose[:, r]
-            + 0.01 * np.sum((sim.body_linvel[:, r] - ref.body_linvel[:, r]) ** 2, axis=-1)
-            + 0.001 * np.sum((sim.body_angvel[:, r] - ref.body_angvel[:, r]) ** 2, axis=-1)
-        )
-        return {
-            "pose": pose @ self.body_weights,
-            "velocity": vel @ self.body_weights,
-            "end_effector": np.mean(np.sum(ee**2, axis=-1), axis=-1),
-            "root": root,
-            "com": np.sum((self.com_velocity(sim) - self.com_velocity(ref)) ** 2, axis=-1),
-        }
+        """Error of every weighted term, {term: (N,)}."""
+        return {k: TERM_FUNCTIONS[k](sim, ref, self.model) for k in self.config.weights}
 
     def __call__(self, sim: CharacterState, ref: CharacterState) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Reward and its named terms exp(-scale * error).
 
         Returns:
-            reward (N,), and {term: (N,)} of the unweighted exponentials.
+            reward (N,), and {term: (N,)} of the unweighted exponentials of the weighted terms.
         """
+        weights, scales = self.config.weights, self.config.scales
         err = self.errors(sim, ref)
-        terms = {k: np.exp(-getattr(self.config.scales, k) * err[k]) for k in REWARD_TERMS}
+        terms = {k: np.exp(-scales[k] * e) for k, e in err.items()}
         if self.config.form == "sum":
-            reward = sum(getattr(self.config.weights, k) * terms[k] for k in REWARD_TERMS)
+            reward = sum(weights[k] * terms[k] for k in terms)
         else:
-            reward = np.prod(np.stack([terms[k] for k in REWARD_TERMS]), axis=0)
+            reward = np.exp(-sum(weights[k] * scales[k] * err[k] for k in err))
         return reward, terms
-
-
-def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Geodesic angle between unit quaternions from their dot product: 2 arccos |<a, b>| (sign-invariant).
-
-    Cheaper than a quaternion product; arccos loses precision only for angles below ~1e-8 rad, which no reward
-    term can resolve.
-    """
-    return 2.0 * np.arccos(np.minimum(np.abs(np.sum(a * b, axis=-1)), 1.0))
 
 
 def termination(
@@ -182,6 +154,7 @@ def termination(
     ref: CharacterState,
     episode_frames: np.ndarray,
     lowest_points: np.ndarray,
+    ref_lowest_points: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Failure rules after a step. Returns terminated (N,) and which rule fired, {rule: (N,) bool}.
 
@@ -192,6 +165,7 @@ def termination(
         ref: Reference state at the same time.
         episode_frames: Steps taken in the episode including this one. Shape: (N,).
         lowest_points: Lowest point of every body of the simulated character. Shape: (N, B).
+        ref_lowest_points: The same for the reference; needed when ``config.contact_clearance`` is set. (N, B).
     """
     rules: dict[str, np.ndarray] = {}
     r, h = humanoid.root_index, humanoid.head_index
@@ -206,12 +180,19 @@ def termination(
         rules["body_pos"] = dist.max(axis=-1) > config.body_pos_error
     if config.min_root_height is not None:
         rules["root_height"] = sim.body_pos[:, r, 2] < config.min_root_height
+    if config.root_height_error is not None:
+        rules["root_below_ref"] = sim.body_pos[:, r, 2] < ref.body_pos[:, r, 2] - config.root_height_error
     if config.fall_contact != "off":
         if config.fall_contact == "deepmimic":
             bodies = humanoid.fall_contact_indices
         else:
             bodies = np.setdiff1d(np.arange(humanoid.num_bodies), humanoid.foot_indices)
-        rules["fall_contact"] = np.any(lowest_points[:, bodies] < config.contact_height, axis=-1)
+        touch = lowest_points[:, bodies] < config.contact_height
+        if config.contact_clearance is not None:
+            if ref_lowest_points is None:
+                raise ValueError("termination: contact_clearance needs the reference's lowest points")
+            touch &= ref_lowest_points[:, bodies] > config.contact_clearance
+        rules["fall_contact"] = np.any(touch, axis=-1)
     armed = episode_frames >= config.grace_frames
     terminated = np.zeros(len(episode_frames), dtype=bool)
     for k in rules:

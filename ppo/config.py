@@ -1,8 +1,9 @@
 """The ``train-ppo`` config: frozen dataclasses loaded from YAML by :mod:`common.config` (unknown keys rejected).
 
 Sections: ``train`` (run length, evaluation; shared with SuperTrack), ``gym`` (characters, termination, reward),
-``network`` (actor and critic), ``ppo`` (rollouts and the update), ``normalizer`` (observation statistics) and
-``motion_weights`` (PARC's adaptive clip sampling). ``configs/ppo/*.yaml`` document every value with its unit.
+``observation`` (what the networks see), ``network`` (actor and critic), ``ppo`` (rollouts and the update),
+``normalizer`` (observation statistics) and ``motion_weights`` (PARC's adaptive clip sampling).
+``configs/ppo/*.yaml`` document every value with its unit.
 """
 
 from __future__ import annotations
@@ -11,17 +12,20 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from common.gym import GymConfig
-from common.rewards import TerminationConfig
+from common.rewards import RewardConfig, TerminationConfig
 from common.training import TrainConfig
 
 
 def _ppo_gym() -> GymConfig:
-    """PARC-style early termination: the character has failed as soon as it is far off the reference."""
+    """PARC-style early termination (the character has failed as soon as it is far off the reference), measured
+    against the reference so that it passes every bundled clip, and PARC's reward."""
     return GymConfig(
         termination=TerminationConfig(
             max_episode_frames=300, grace_frames=0, head_height_error=None, root_pos_error=1.0,
-            root_rot_error=1.5708, body_pos_error=0.5, min_root_height=0.3, fall_contact="deepmimic",
-        )
+            root_rot_error=1.5708, body_pos_error=0.5, root_height_error=0.3, fall_contact="deepmimic",
+            contact_clearance=0.1,
+        ),
+        reward=RewardConfig(preset="parc"),
     )  # fmt: skip
 
 
@@ -114,21 +118,41 @@ class PPOConfig:
 
 
 @dataclass(frozen=True)
+class ObservationConfig:
+    """What the policy and the value function see (:mod:`ppo.observation`).
+
+    Attributes:
+        kind: ``parc`` (simulated-minus-reference features in the simulated root's heading frame, and future
+            reference frames) or ``local`` (Local() of both characters, the reference root one frame ahead, phase).
+        future_frames: ``parc``: offsets k (control steps) of the reference frames t + k dt observed, increasing;
+            the first one also gives the velocity errors.
+    """
+
+    kind: Literal["parc", "local"] = "parc"
+    future_frames: tuple[int, ...] = (1, 2, 4, 8, 16)
+
+    def __post_init__(self) -> None:
+        k = self.future_frames
+        if not k or min(k) < 1 or list(k) != sorted(set(k)):
+            raise ValueError(f"future_frames must be distinct positive offsets in increasing order, got {list(k)}")
+
+
+@dataclass(frozen=True)
 class NormalizerConfig:
     """Running mean/std of the observation.
 
     Attributes:
         clip: Normalised features are clipped to [-clip, clip].
         epsilon: Floor of the standard deviation (features that never vary are only centred).
-        exclude: Observation features (names from ``common.features.OBSERVATION_KEYS``) left as they are because
-            they are already bounded, e.g. the phase's sin and cos.
+        exclude: Observation features (names from :mod:`ppo.observation`) left as they are because they are
+            already bounded, e.g. the ``local`` observation's ``phase`` (sin and cos).
         max_samples: Stop updating the statistics after this many samples (MimicKit's normalizer_samples); None:
             update throughout training. Evaluation always uses frozen statistics.
     """
 
     clip: float = 5.0
     epsilon: float = 1e-2
-    exclude: tuple[str, ...] = ("phase",)
+    exclude: tuple[str, ...] = ()
     max_samples: int | None = None
 
     def __post_init__(self) -> None:
@@ -174,6 +198,7 @@ class PPOTrackerConfig:
 
     train: TrainConfig = field(default_factory=TrainConfig)
     gym: GymConfig = field(default_factory=_ppo_gym)
+    observation: ObservationConfig = field(default_factory=ObservationConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
     normalizer: NormalizerConfig = field(default_factory=NormalizerConfig)

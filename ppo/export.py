@@ -20,7 +20,7 @@ from common.run import load_run_checkpoint
 from ppo.config import PPOTrackerConfig
 from ppo.networks import ActorCritic
 from ppo.normalizer import RunningNormalizer
-from ppo.observation import observe
+from ppo.observation import Observer
 
 
 def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, library: MotionLibrary) -> Policy:
@@ -30,7 +30,7 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
         run_dir: The run directory (its ``config.yaml`` gives the network and normaliser settings).
         checkpoint: A checkpoint written by the trainer.
         humanoid: The model.
-        library: The motions to evaluate on (unused: the observation does not depend on the motion set).
+        library: The motions to evaluate on (the observation reads their future reference frames).
 
     Returns:
         A callable from the gym's StepResult to hinge PD targets (N, nu).
@@ -38,7 +38,6 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
     Raises:
         ValueError: If the checkpoint holds no PPO policy or does not fit the config.
     """
-    del library
     cfg, learner = load_run_checkpoint(PPOTrackerConfig, run_dir, checkpoint, "sizes", "normalizer", "net")
     sizes, norm_state = learner["sizes"], learner["normalizer"]
     if sizes["action"] != humanoid.nu:
@@ -55,9 +54,18 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
     actor = net.actor.eval()
     hinge_qpos = humanoid.hinge_qpos
     scale, clip = cfg.network.action_scale, cfg.network.action_clip
+    observe = Observer(cfg.observation, humanoid, library)
 
     def act(result: StepResult) -> np.ndarray:
-        norm_obs = normalizer.normalize(observe(result.sim, result.ref_next, result.phase))
+        obs = observe(result)
+        if obs.shape[-1] != sizes["obs"]:
+            # e.g. a run from before the parc observation: its config.yaml has no observation section
+            raise ValueError(
+                f"{run_dir}/config.yaml: the '{cfg.observation.kind}' observation has {obs.shape[-1]} features, the "
+                f"policy in {checkpoint} reads {sizes['obs']} (a run with the previous observation needs "
+                f"'observation: {{kind: local}}' in its config.yaml)"
+            )
+        norm_obs = normalizer.normalize(obs)
         with torch.no_grad():
             mean = actor(torch.as_tensor(norm_obs)).double().numpy()
         if clip is not None:

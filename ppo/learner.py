@@ -1,6 +1,6 @@
 """The PPO tracker as a :class:`common.training.Learner`: one iteration = collect() a rollout, update() on it.
 
-collect(): ``rollout_length`` gym steps of N characters. Each step observes (sim at t, reference at t + dt, phase),
+collect(): ``rollout_length`` gym steps of N characters. Each step observes the state (:mod:`ppo.observation`),
 updates the normaliser's statistics, samples a ~ N(mu, sigma) and sends PD targets = reference hinge angles of the
 next frame + action_scale * clip(a); the row pushed to the cyclic buffer holds the normalised observation, the
 action, its log-probability, V(s), the reward, the done flags and, for truncated episodes, V of the state the step
@@ -23,7 +23,6 @@ from common.evaluate import Policy
 from common.gym import StepResult, TrackingGym
 from common.humanoid import Humanoid
 from common.motion_library import MotionLibrary
-from common.rewards import REWARD_TERMS
 from common.training import NanGuard, gym_config
 from ppo.config import PPOTrackerConfig
 from ppo.gae import gae
@@ -31,7 +30,7 @@ from ppo.losses import ppo_loss
 from ppo.motion_weights import MotionWeights
 from ppo.networks import ActorCritic
 from ppo.normalizer import RunningNormalizer
-from ppo.observation import normalized_mask, observation_layout, observe
+from ppo.observation import Observer, normalized_mask
 
 _LOG_CLIP_LIMIT = 20  # clips whose failure rates are logged one by one
 
@@ -56,7 +55,8 @@ class PPOLearner:
         self.result = self.gym.reset()
         self.num_envs, self.action_size = self.gym.num_envs, humanoid.nu
         self.hinge_qpos = humanoid.hinge_qpos
-        layout = observation_layout(self.result.sim, self.result.ref_next, self.result.phase)
+        self.observe = Observer(config.observation, humanoid, library)
+        layout = self.observe.layout(self.result)
         n = config.normalizer
         self.normalizer = RunningNormalizer(normalized_mask(layout, n.exclude), n.clip, n.epsilon, n.max_samples)
         self.obs_size = self.normalizer.size
@@ -100,12 +100,12 @@ class PPOLearner:
         """Runs one rollout into the buffer; returns the number of samples (rollout_length x N)."""
         T, N = self.config.ppo.rollout_length, self.num_envs
         lengths, returns, failed = [], [], []
-        terms = {k: 0.0 for k in REWARD_TERMS}
+        terms = {k: 0.0 for k in self.config.gym.reward.weights}
         reward_sum = 0.0
         events: dict[str, float] = {}
         for _ in range(T):
             res = self.result
-            raw = observe(res.sim, res.ref_next, res.phase)
+            raw = self.observe(res)
             self.normalizer.update(raw)
             norm_obs = self.normalizer.normalize(raw)
             noise = self._tensor(self.rng.standard_normal((N, self.action_size)))
@@ -116,8 +116,7 @@ class PPOLearner:
             bootstrap = np.zeros(N)
             cut = np.flatnonzero(step.truncated)
             if len(cut):
-                final = observe(step.final_sim[cut], step.final_ref_next[cut], step.final_phase[cut])
-                bootstrap[cut] = self._values(self.normalizer.normalize(final))
+                bootstrap[cut] = self._values(self.normalizer.normalize(self.observe.final(step, cut)))
             self.buffer.push(
                 obs=norm_obs, action=action, log_prob=out.log_prob.cpu().numpy(), value=out.value.cpu().numpy(),
                 reward=step.reward, bootstrap_value=bootstrap, episode_id=res.episode_id,
@@ -131,13 +130,12 @@ class PPOLearner:
             failed += step.terminated[done].tolist()
             self.episode_return[done] = 0.0
             reward_sum += float(step.reward.mean())
-            for k in REWARD_TERMS:
+            for k in terms:
                 terms[k] += float(step.reward_terms[k].mean())
             for k, v in step.info.items():
                 events[k] = events.get(k, 0.0) + v
             self.result = step
-        res = self.result
-        self.last_value = self._values(self.normalizer.normalize(observe(res.sim, res.ref_next, res.phase)))
+        self.last_value = self._values(self.normalizer.normalize(self.observe(self.result)))
         if self.config.motion_weights.enabled:
             self.gym.set_clip_weights(self.motion_weights.weights())
         self.rollout_stats = {"charts/mean_reward": reward_sum / T, **{f"reward/{k}": v / T for k, v in terms.items()}}
@@ -228,10 +226,10 @@ class PPOLearner:
         """A frozen snapshot of the deterministic policy: the mean action under frozen normaliser statistics."""
         actor = copy.deepcopy(self.net.actor).eval()
         normalizer = copy.deepcopy(self.normalizer)
-        hinge_qpos, device = self.hinge_qpos, self.device
+        hinge_qpos, device, observe = self.hinge_qpos, self.device, self.observe
 
         def act(result: StepResult) -> np.ndarray:
-            norm_obs = normalizer.normalize(observe(result.sim, result.ref_next, result.phase))
+            norm_obs = normalizer.normalize(observe(result))
             with torch.no_grad():
                 mean = actor(torch.as_tensor(norm_obs, device=device)).double().cpu().numpy()
             return self._pd_targets(result.ref_next.qpos[:, hinge_qpos], mean)

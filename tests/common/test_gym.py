@@ -12,7 +12,7 @@ from common.gym import GymConfig, TrackingGym
 from common.humanoid import Humanoid
 from common.motion_dataset import load_motions
 from common.motion_library import CharacterState, MotionLibrary
-from common.rewards import REWARD_TERMS, RewardConfig, TerminationConfig, TrackingReward, termination
+from common.rewards import RewardConfig, TerminationConfig, TrackingReward, termination
 from common.rotations import quat_from_axis_angle, quat_mul
 
 
@@ -45,7 +45,7 @@ def test_contract_reset_step_shapes_no_nan(library: MotionLibrary, humanoid: Hum
             for v in vars(state).values():
                 assert np.isfinite(v).all()
         assert res.reward.shape == (6,) and np.all((res.reward >= 0) & (res.reward <= 1))
-        assert set(res.reward_terms) == set(REWARD_TERMS)
+        assert set(res.reward_terms) == set(RewardConfig().weights)
         assert res.terminated.dtype == bool and res.truncated.dtype == bool
         assert np.all((res.phase >= 0) & (res.phase <= 1))
     gym.close()
@@ -78,13 +78,8 @@ def test_reward_is_maximal_when_simulation_equals_reference(library: MotionLibra
     off.body_rot[:, torso] = quat_mul(off.body_rot[:, torso], bend)
     reward, terms = TrackingReward(humanoid, RewardConfig())(off, states)
     fn = TrackingReward(humanoid, RewardConfig())
-    w_chest = fn.body_weights[torso]
-    np.testing.assert_allclose(
-        terms["pose"],
-        np.exp(
-            -2.0 * (w_chest * 0.25 + fn.body_weights[3] * 0.25 + fn.body_weights[6] * 0.25 + fn.body_weights[2] * 0.25)
-        ),
-    )
+    w = fn.model.body_weights
+    np.testing.assert_allclose(terms["pose"], np.exp(-2.0 * (w[torso] + w[3] + w[6] + w[2]) * 0.25))
     assert np.all(reward < 1.0)
 
 
@@ -140,9 +135,12 @@ def test_truncation_at_max_frames_and_clip_end(library: MotionLibrary, humanoid:
     end = library.end_time[kick]
     gym.reset(clips=np.array([0, kick]), times=np.array([0.0, end - 3 * gym.dt]))
     flags = []
-    for _ in range(5):
+    for step in range(5):
         res = gym.step(gym.reference_targets())
         flags.append((res.truncated.tolist(), res.terminated.tolist()))
+        if step == 2:  # the kick's episode ended and was reset: final_clip/final_time still say where it was
+            assert res.final_clip[1] == kick and res.episode_frame[1] == 0
+            np.testing.assert_allclose(res.final_time, [3 * gym.dt, end])
     # The one-shot kick runs out of frames after 3 steps; the walk is cut by the 5-frame limit.
     assert flags[2] == ([False, True], [False, False])
     assert flags[4][0][0] is True

@@ -14,7 +14,6 @@ from common.humanoid import Humanoid
 from common.motion_dataset import load_motions
 from ppo.config import PPOTrackerConfig
 from ppo.learner import PPOLearner
-from ppo.observation import observe
 
 DEBUG = Path(__file__).resolve().parents[2] / "configs" / "ppo" / "debug.yaml"
 
@@ -64,4 +63,4 @@ def test_deterministic_policy_is_a_frozen_snapshot(learner: PPOLearner) -> None:
     # Near the reference: the last layer starts small, so the mean offset is tiny.
     reference = result.ref_next.qpos[:, learner.hinge_qpos]
     assert np.abs(targets - reference).max() < 0.05
-    assert observe(result.sim, result.ref_next, result.phase).shape == (8, learner.obs_size)
+    assert learner.observe(result).shape == (8, learner.obs_size)

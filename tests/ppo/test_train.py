@@ -11,10 +11,12 @@ import pytest
 import torch
 
 from common.config import load_config
+from common.gym import GymConfig, TrackingGym
 from common.humanoid import Humanoid
 from common.motion_dataset import load_motions
 from common.run import read_checkpoint
 from ppo.config import PPOTrackerConfig
+from ppo.export import load_eval_policy
 from ppo.learner import PPOLearner
 from ppo.train import main
 
@@ -57,7 +59,8 @@ def test_debug_run_trains_checkpoints_and_evaluates(runs: dict[str, Path]) -> No
     assert 0.0 <= last["eval/survival"] <= 1.0 and np.isfinite(last["eval/mpjpe_g"])
     logged = {k for r in records for k in r}
     for key in ("losses/policy", "losses/value", "losses/entropy", "losses/approx_kl", "losses/clip_frac",
-                "reward/pose", "charts/mean_reward", "charts/action_std", "charts/clip_weight_max",
+                "reward/root_pos", "reward/body_pos", "charts/term/root_below_ref_per_1k", "charts/mean_reward",
+                "charts/action_std", "charts/clip_weight_max",
                 "perf/samples_per_s", "perf/gym_share", "perf/update_share"):  # fmt: skip
         assert key in logged, key
     state = read_checkpoint(run)[1]["learner"]
@@ -84,6 +87,21 @@ def test_mismatched_checkpoint_is_refused(runs: dict[str, Path], capsys: pytest.
     with pytest.raises(SystemExit, match="(?s)incompatible with the current run.*network.actor_hidden"):
         _run(runs["straight"], "--resume", "--max-iterations", "8", "--set", "network.actor_hidden=[16]")
     assert not (runs["straight"] / "checkpoints" / "ckpt_00000008.pt").exists()
+
+
+def test_export_refuses_a_policy_of_another_observation(runs: dict[str, Path], tmp_path: Path) -> None:
+    """A run's config.yaml naming another observation than its policy was trained on fails with one clear line."""
+    run = tmp_path / "run"
+    shutil.copytree(runs["straight"], run)
+    config = run / "config.yaml"
+    config.write_text(config.read_text().replace("kind: parc", "kind: local"))
+    humanoid = Humanoid()
+    library = load_motions(["walk"], humanoid)
+    policy = load_eval_policy(run, run / "checkpoints" / "latest.pt", humanoid, library)
+    gym = TrackingGym(GymConfig(num_envs=2, threads=1), library, humanoid)
+    with pytest.raises(ValueError, match="the 'local' observation has 497 features, the policy in .* reads 725"):
+        policy(gym.reset())
+    gym.close()
 
 
 def test_existing_run_needs_resume_and_unknown_keys_fail(runs: dict[str, Path], tmp_path: Path) -> None:

@@ -1,0 +1,82 @@
+"""Every bundled clip, played kinematically (simulated state = reference) at every frame, passes PPO's termination
+rules of each config and the evaluator's; the previous absolute rules did not."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.config import load_config
+from common.humanoid import BodyGeometry, Humanoid
+from common.motion_dataset import load_motions
+from common.motion_library import CharacterState, MotionLibrary
+from common.rewards import TerminationConfig, termination
+from ppo.config import PPOTrackerConfig
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs" / "ppo"
+# The rules PPO used before (PARC's absolute root height, fall contact from frame 0).
+ABSOLUTE = TerminationConfig(max_episode_frames=300, grace_frames=0, head_height_error=None, root_pos_error=1.0,
+                             root_rot_error=1.5708, body_pos_error=0.5, min_root_height=0.3,
+                             fall_contact="deepmimic")  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def humanoid() -> Humanoid:
+    return Humanoid()
+
+
+@pytest.fixture(scope="module")
+def clips(humanoid: Humanoid) -> dict[str, tuple[CharacterState, np.ndarray]]:
+    """Every frame of every bundled clip (the 20 short and the long ones) and its bodies' lowest points."""
+    library: MotionLibrary = load_motions(["all", "long"], humanoid)
+    geometry = BodyGeometry(humanoid)
+    out = {}
+    for c, name in enumerate(library.names):
+        frames = library.frames[np.arange(library.start[c], library.start[c] + library.num_frames[c])]
+        out[name] = (frames, geometry.lowest_points(frames.body_pos, frames.body_rot))
+    return out
+
+
+def _terminated(cfg: TerminationConfig, humanoid: Humanoid, frames: CharacterState, lowest: np.ndarray) -> np.ndarray:
+    # Every frame counted as late in an episode, so that a grace period hides nothing.
+    late = np.full(len(lowest), 10_000)
+    return termination(cfg, humanoid, frames, frames, late, lowest, lowest)[0]
+
+
+@pytest.mark.parametrize("name", ["default", "paper", "debug"])
+def test_reference_passes_ppo_and_evaluator_rules(humanoid: Humanoid, clips: dict, name: str) -> None:
+    cfg = load_config(PPOTrackerConfig, CONFIGS / f"{name}.yaml")
+    assert len(clips) == 29
+    for rules in (cfg.gym.termination, cfg.train.eval.termination):
+        failing = {clip: int(_terminated(rules, humanoid, *data).sum()) for clip, data in clips.items()}
+        assert not any(failing.values()), f"{name}.yaml: the reference itself terminates: {failing}"
+
+
+def test_absolute_rules_fail_on_the_ground_clips(humanoid: Humanoid, clips: dict) -> None:
+    """The previous rules end episodes that track perfectly (the issue's shares of frames)."""
+    share = {clip: float(_terminated(ABSOLUTE, humanoid, *data).mean()) for clip, data in clips.items()}
+    assert {clip for clip, s in share.items() if s > 0} == {"crawl", "getup_facedown", "getup_faceup", "roll"}
+    np.testing.assert_allclose([share["crawl"], share["getup_facedown"]], [0.424, 0.363], atol=0.005)
+    frames, lowest = clips["getup_faceup"]
+    contact = termination(ABSOLUTE, humanoid, frames, frames, np.full(len(lowest), 10_000), lowest)[1]["fall_contact"]
+    assert 0.19 < contact.mean() < 0.22  # pelvis, torso or head on the ground in 20 % of the reference's frames
+
+
+def test_relative_rules_still_fire(humanoid: Humanoid, clips: dict) -> None:
+    """Off the reference they still end the episode: the root 0.35 m below the reference's, or the head on the
+    ground where the reference holds it up."""
+    frames, lowest = clips["walk"]
+    cfg = load_config(PPOTrackerConfig, CONFIGS / "default.yaml").gym.termination
+    late = np.full(len(lowest), 10_000)
+    sim = CharacterState(**{k: v.copy() for k, v in vars(frames).items()})
+    sim.body_pos[:, 0, 2] -= 0.35
+    terminated, rules = termination(cfg, humanoid, sim, frames, late, lowest, lowest)
+    assert terminated.all() and rules["root_below_ref"].all() and not rules["fall_contact"].any()
+    down = lowest.copy()
+    down[:, humanoid.head_index] = 0.0
+    terminated, rules = termination(cfg, humanoid, frames, frames, late, down, lowest)
+    assert terminated.all() and rules["fall_contact"].all()
+    with pytest.raises(ValueError, match="contact_clearance needs the reference's lowest points"):
+        termination(cfg, humanoid, frames, frames, late, down)
