@@ -130,6 +130,7 @@ def _render(args: argparse.Namespace, humanoid: Humanoid) -> int:
     if backend is None:
         print(f"error: {why}", file=sys.stderr)
         return 3
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     render.video(qpos, None, humanoid, Path(args.out), backend, fps=humanoid.physics.control_hz,
                  width=args.size[0], height=args.size[1])  # fmt: skip
     print(f"wrote {args.out}: {library.names[clip]}, {len(qpos)} frames at {humanoid.physics.control_hz:g} fps ({why})")

@@ -84,6 +84,8 @@ def import_clip(spec: str, humanoid: Humanoid, options: ImportOptions) -> tuple[
 def write_clip(path: str | Path, clip: Clip, humanoid: Humanoid) -> None:
     """``.txt``: a DeepMimic clip; ``.h5``: a one-clip motion dataset at the humanoid's control rate."""
     path = Path(path)
+    if path.suffix in (".txt", ".h5"):
+        path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix == ".txt":
         write_deepmimic(path, clip)
     elif path.suffix == ".h5":

@@ -12,10 +12,13 @@ Method (all rotations active, quaternions (w, x, y, z)):
    and the right-to-left line (hips, shoulders) as close as possible (TRIAD). A T-pose and an A-pose source therefore
    give the same character pose for the same bone directions.
 3. **Per frame** the body's world rotation is R_b(t) = G'_s(t) A_b, with G'_s the world rotation of its source
-   joint: every unmapped source joint above it (extra spine links, collars) is already composed into G'_s.
-4. **Hinges.** A knee's or elbow's local rotation L = R_parent^-1 R_child is replaced by its twist about the hinge
-   (+y): theta = 2 atan2(L_y, L_w); the residual angle |L Ry(theta)^-1| is reported. The foot and hand keep their
-   world rotation (the ankle absorbs the change).
+   joint: every unmapped source joint above it (extra spine links, collars) is already composed into G'_s. A tip
+   marked ``with_parent`` (the CMU feet) instead takes its rotation from its tip and its parent bone, frame by frame.
+4. **Hinges.** Bone directions leave a limb's twist about its bone free, so thigh and shin (upper arm and forearm)
+   are first turned together about the bone until the flexion axis seen in the data (the principal axis of the
+   hinge's rotation vectors) lies on the character's hinge. The local rotation L = R_parent^-1 R_child is then
+   replaced by its twist about the hinge (+y): theta = 2 atan2(L_y, L_w); the residual angle |L Ry(theta)^-1| is
+   reported. The foot keeps its world rotation (the ankle absorbs the change).
 5. **Root.** The pelvis follows the source's hip midpoint scaled by the ratio of leg lengths (thigh + shin), so
    that a taller subject's stride fits the character's legs (``root="source"``: scaled by the units instead).
 
@@ -35,7 +38,7 @@ import numpy as np
 
 from common.humanoid import Humanoid
 from common.motion import Clip, MotionFormatError
-from common.motion_import.bvh import Bvh, forward_kinematics, rest_positions
+from common.motion_import.bvh import END_SUFFIX, Bvh, forward_kinematics, rest_positions
 from common.motion_import.joint_map import JointMap
 from common.rotations import (
     matrix_to_quat,
@@ -213,16 +216,107 @@ def triad(e1: np.ndarray, e2: np.ndarray, d1: np.ndarray, d2: np.ndarray) -> np.
     return matrix_to_quat(frame(d1, d2) @ np.swapaxes(frame(e1, e2), -1, -2))
 
 
-def _end_positions(bvh: Bvh, pos: np.ndarray, rot: np.ndarray, name: str) -> np.ndarray:
-    j = bvh.index(name.removesuffix("/end"))
-    return pos[:, j] + quat_rotate(rot[:, j], bvh.joints[j].end_site)
-
-
 def world_axes(up: str, left: np.ndarray) -> np.ndarray:
     """W with rows forward, left, up of the source (see the module docstring). Shape: (3, 3)."""
     u = np.eye(3)["xyz".index(up)]
     left = _unit(left - np.dot(left, u) * u)
     return np.stack([np.cross(left, u), left, u])
+
+
+@dataclass(frozen=True)
+class _Pair:
+    """The two skeletons side by side: the character at its zero pose, the source at rest, in project axes.
+
+    Attributes:
+        bodies: Character body names; ``parent`` their parent indices (-1 for the root).
+        zero: Character body origins at the zero pose. Shape: (B, 3).
+        rest: Source joint and End Site positions at rest (file units, file axes).
+        src: Character body -> its source joint; ``tips``: leaf body -> the joint or End Site its tip aims at.
+        world: W, file axes -> project axes. Shape: (3, 3).
+    """
+
+    bodies: tuple[str, ...]
+    parent: np.ndarray
+    zero: np.ndarray
+    rest: dict[str, np.ndarray]
+    src: dict[str, str]
+    tips: dict[str, str]
+    world: np.ndarray
+
+    def char_vec(self, a: str, b: str) -> np.ndarray:
+        """Character body a -> body b at the zero pose."""
+        return self.zero[self.bodies.index(b)] - self.zero[self.bodies.index(a)]
+
+    def src_vec(self, a: str, b: str) -> np.ndarray:
+        """Source point a -> point b at rest, in project axes (file units)."""
+        return self.world @ (self.rest[b] - self.rest[a])
+
+    def parent_of(self, body: str) -> str:
+        return self.bodies[self.parent[self.bodies.index(body)]]
+
+    def children(self, body: str) -> list[str]:
+        return [self.bodies[c] for c in np.flatnonzero(self.parent == self.bodies.index(body))]
+
+
+def _rest_rotations(pair: _Pair, joint_map: JointMap, driven: list[str]) -> dict[str, np.ndarray]:
+    """A_b per driven body: the character's zero-pose bone directions turned onto the source's rest ones."""
+    out = {}
+    for b in driven:
+        kids = pair.children(b)
+        if not kids:
+            if b not in joint_map.tips:
+                raise MotionFormatError(f"{joint_map.name}: body {b} has no mapped child: give it a tip")
+            pairs = [(joint_map.tips[b].along, pair.src_vec(pair.src[b], pair.tips[b]))]
+        elif len(kids) == 1:
+            pairs = [(pair.char_vec(b, kids[0]), pair.src_vec(pair.src[b], pair.src[kids[0]]))]
+        else:
+            centre = [k for k in kids if not k.startswith(("left_", "right_"))]
+            left = [k for k in kids if k.startswith("left_")]
+            right = [k for k in kids if k.startswith("right_")]
+            if len(centre) != 1 or len(left) != 1 or len(right) != 1:
+                raise ValueError(f"body {b}: expected one centre, one left and one right child, got {kids}")
+            # Up the spine exactly, then the right-to-left line (hips or shoulders) as near as possible.
+            pairs = [(pair.char_vec(b, centre[0]), pair.src_vec(pair.src[b], pair.src[centre[0]])),
+                     (pair.char_vec(right[0], left[0]),
+                      pair.src_vec(pair.src[right[0]], pair.src[left[0]]))]  # fmt: skip
+        out[b] = align([p[0] for p in pairs], [p[1] for p in pairs])
+    return out
+
+
+def _point(bvh: Bvh, pos: np.ndarray, rot: np.ndarray, name: str) -> np.ndarray:
+    """World position per frame of a joint or an End Site (``JOINT/end``). Shape: (F, 3)."""
+    if name.endswith(END_SUFFIX):
+        j = bvh.index(name.removesuffix(END_SUFFIX))
+        return pos[:, j] + quat_rotate(rot[:, j], bvh.joints[j].end_site)
+    return pos[:, bvh.index(name)]
+
+
+def _onto_hinges(pair: _Pair, humanoid: Humanoid, body_rot: dict[str, np.ndarray]) -> tuple[dict, dict]:
+    """Turns each knee's and elbow's limb onto its hinge and keeps only the twist about it (``body_rot`` in place).
+
+    Returns:
+        ({hinge: limb turn in degrees}, {hinge: (mean, max) residual in degrees}).
+    """
+    turns, residual = {}, {}
+    model = humanoid.model
+    for g in humanoid.joint_groups:
+        if g.kind != "revolute":
+            continue
+        p = pair.parent_of(g.body)
+        local = quat_mul(quat_conj(body_rot[p]), body_rot[g.body])
+        # Bone directions leave the limb's twist about its bone free: choose it so that the source's flexion axis
+        # (from the data) falls on the character's hinge, signed as the joint's range. Both bones turn alike.
+        lo, hi = model.jnt_range[model.jnt_qposadr == g.qpos[0]][0]
+        turn = hinge_twist(local, pair.char_vec(p, g.body), -_HINGE if lo + hi < 0 else _HINGE)
+        turns[g.name] = float(np.degrees(quat_geodesic_angle(turn, np.array([1.0, 0.0, 0.0, 0.0]))))
+        for b in (p, g.body):
+            body_rot[b] = quat_mul(body_rot[b], turn)
+        local = quat_mul(quat_conj(body_rot[p]), body_rot[g.body])
+        twist = quat_from_axis_angle(_HINGE, 2.0 * np.arctan2(local[:, 2], local[:, 0]))
+        err = np.degrees(quat_geodesic_angle(local, twist))
+        residual[g.name] = (float(err.mean()), float(err.max()))
+        body_rot[g.body] = quat_mul(body_rot[p], twist)
+    return turns, residual
 
 
 def retarget(bvh: Bvh, humanoid: Humanoid, joint_map: JointMap, options: RetargetOptions | None = None,
@@ -245,90 +339,40 @@ def retarget(bvh: Bvh, humanoid: Humanoid, joint_map: JointMap, options: Retarge
     src = {b: _resolve(bvh, joint_map.bodies[b], rest, f"for body {b}", joint_map.name) for b in bodies}
     tips = {b: _resolve(bvh, t.source, rest, f"tip of {b}", joint_map.name) for b, t in joint_map.tips.items()}
     for b in bodies:
-        if src[b].endswith("/end"):
+        if src[b].endswith(END_SUFFIX):
             raise MotionFormatError(f"{bvh.source}: body {b} is mapped to End Site {src[b]}: it needs a joint")
-    parent = humanoid.parent_index
-    children = {b: [bodies[c] for c in np.flatnonzero(parent == i)] for i, b in enumerate(bodies)}
-    # Bodies with no joint of their own (the hands, welded to the forearms) only mark where their parent points.
-    driven = [bodies[humanoid.root_index]] + [g.body for g in humanoid.joint_groups]
     up = options.up or joint_map.up
     world = world_axes(up, rest[src["left_thigh"]] - rest[src["right_thigh"]])
-    w = matrix_to_quat(world)
-    zero = zero_pose(humanoid)
-
-    def char_vec(a: str, b: str) -> np.ndarray:
-        return zero[bodies.index(b)] - zero[bodies.index(a)]
-
-    def src_vec(a: str, b: str) -> np.ndarray:
-        return world @ (rest[b] - rest[a])
-
-    rest_rot = {}
-    for b in driven:
-        kids = children[b]
-        if not kids:
-            if b not in joint_map.tips:
-                raise MotionFormatError(f"{joint_map.name}: body {b} has no mapped child: give it a tip")
-            pairs = [(joint_map.tips[b].along, world @ (rest[tips[b]] - rest[src[b]]))]
-        elif len(kids) == 1:
-            pairs = [(char_vec(b, kids[0]), src_vec(src[b], src[kids[0]]))]
-        else:
-            centre = [k for k in kids if not k.startswith(("left_", "right_"))]
-            left = [k for k in kids if k.startswith("left_")]
-            right = [k for k in kids if k.startswith("right_")]
-            if len(centre) != 1 or len(left) != 1 or len(right) != 1:
-                raise ValueError(f"body {b}: expected one centre, one left and one right child, got {kids}")
-            pairs = [(char_vec(b, centre[0]), src_vec(src[b], src[centre[0]])),
-                     (char_vec(right[0], left[0]), src_vec(src[right[0]], src[left[0]]))]  # fmt: skip
-        rest_rot[b] = align([p[0] for p in pairs], [p[1] for p in pairs])
+    pair = _Pair(bodies, humanoid.parent_index, zero_pose(humanoid), rest, src, tips, world)
+    # Bodies with no joint of their own (the hands, welded to the forearms) only mark where their parent points.
+    pelvis = bodies[humanoid.root_index]
+    driven = [pelvis] + [g.body for g in humanoid.joint_groups]
+    rest_rot = _rest_rotations(pair, joint_map, driven)
 
     pos, rot = forward_kinematics(bvh)
-    index = {n: i for i, n in enumerate(bvh.names)}
+    w = matrix_to_quat(world)
     w_inv = quat_conj(w)
-    body_rot = {b: quat_mul(quat_mul(quat_mul(w, rot[:, index[src[b]]]), w_inv), rest_rot[b]) for b in driven}
-
+    body_rot = {b: quat_mul(quat_mul(quat_mul(w, rot[:, bvh.index(src[b])]), w_inv), rest_rot[b]) for b in driven}
     for b, tip in joint_map.tips.items():
         if tip.with_parent:
-            up_bone = src[bodies[parent[bodies.index(b)]]]
-            body_rot[b] = triad(tip.along, -char_vec(bodies[parent[bodies.index(b)]], b),
-                                (pos[:, index[tips[b].split("/")[0]]] if not tips[b].endswith("/end") else
-                                 _end_positions(bvh, pos, rot, tips[b])) @ world.T - pos[:, index[src[b]]] @ world.T,
-                                (pos[:, index[up_bone]] - pos[:, index[src[b]]]) @ world.T)  # fmt: skip
-    residual, twists = {}, {}
-    for g in humanoid.joint_groups:
-        if g.kind != "revolute":
-            continue
-        p = bodies[parent[bodies.index(g.body)]]
-        local = quat_mul(quat_conj(body_rot[p]), body_rot[g.body])
-        # The twist of the limb about its bone is not fixed by bone directions: choose it so that the source's
-        # flexion axis (from the data) falls on the character's hinge. Parent and child turn alike about the bone.
-        lo, hi = humanoid.model.jnt_range[humanoid.model.jnt_qposadr == g.qpos[0]][0]
-        flex = -_HINGE if lo + hi < 0 else _HINGE
-        turn = hinge_twist(local, char_vec(p, g.body), flex)
-        twists[g.name] = float(np.degrees(2.0 * np.arctan2(np.linalg.norm(turn[1:]), turn[0])))
-        for b in (p, g.body):
-            body_rot[b] = quat_mul(body_rot[b], turn)
-        local = quat_mul(quat_conj(body_rot[p]), body_rot[g.body])
-        twist = quat_from_axis_angle(_HINGE, 2.0 * np.arctan2(local[:, 2], local[:, 0]))
-        err = np.degrees(quat_geodesic_angle(local, twist))
-        residual[g.name] = (float(err.mean()), float(err.max()))
-        body_rot[g.body] = quat_mul(body_rot[p], twist)
+            toward_parent = (pos[:, bvh.index(src[pair.parent_of(b)])] - pos[:, bvh.index(src[b])]) @ world.T
+            tip_dir = (_point(bvh, pos, rot, tips[b]) - pos[:, bvh.index(src[b])]) @ world.T
+            body_rot[b] = triad(tip.along, -pair.char_vec(pair.parent_of(b), b), tip_dir, toward_parent)
+    turns, residual = _onto_hinges(pair, humanoid, body_rot)
 
     scale, note = (options.scale, "given") if options.scale else infer_scale(rest, "xyz".index(up))
     legs = [("right_thigh", "right_shin", "right_foot"), ("left_thigh", "left_shin", "left_foot")]
-    char_leg = np.mean([np.linalg.norm(char_vec(a, b)) + np.linalg.norm(char_vec(b, c)) for a, b, c in legs])
-    src_leg = np.mean([np.linalg.norm(rest[src[b]] - rest[src[a]]) + np.linalg.norm(rest[src[c]] - rest[src[b]])
+    char_leg = np.mean([np.linalg.norm(pair.char_vec(a, b)) + np.linalg.norm(pair.char_vec(b, c)) for a, b, c in legs])
+    src_leg = np.mean([np.linalg.norm(pair.src_vec(src[a], src[b])) + np.linalg.norm(pair.src_vec(src[b], src[c]))
                        for a, b, c in legs])  # fmt: skip
     leg_ratio = float(char_leg / (src_leg * scale))
     k = leg_ratio * scale if options.root == "legs" else scale
-    hips = 0.5 * (pos[:, index[src["left_thigh"]]] + pos[:, index[src["right_thigh"]]])
-    pelvis = bodies[humanoid.root_index]
-    hip_offset = 0.5 * (char_vec(pelvis, "left_thigh") + char_vec(pelvis, "right_thigh"))
+    hips = 0.5 * (pos[:, bvh.index(src["left_thigh"])] + pos[:, bvh.index(src["right_thigh"])])
+    hip_offset = 0.5 * (pair.char_vec(pelvis, "left_thigh") + pair.char_vec(pelvis, "right_thigh"))
     root_pos = k * hips @ world.T - quat_rotate(body_rot[pelvis], hip_offset)
 
-    joint_rot = np.stack(
-        [quat_mul(quat_conj(body_rot[bodies[parent[bodies.index(g.body)]]]), body_rot[g.body])
-         for g in humanoid.joint_groups], axis=1,
-    )  # fmt: skip
+    joint_rot = np.stack([quat_mul(quat_conj(body_rot[pair.parent_of(g.body)]), body_rot[g.body])
+                          for g in humanoid.joint_groups], axis=1)  # fmt: skip
     clip = Clip(
         name=name or Path(bvh.source).stem, source=bvh.source, loop=False,
         times=np.arange(bvh.num_frames) * bvh.frame_time, root_pos=root_pos,
@@ -336,4 +380,4 @@ def retarget(bvh: Bvh, humanoid: Humanoid, joint_map: JointMap, options: Retarge
         joint_rot=quat_fix_hemisphere(quat_normalize(joint_rot), axis=0),
     )  # fmt: skip
     sources = {b: src[b] for b in bodies} | {f"{b} tip": t for b, t in tips.items()}
-    return Retargeted(clip, sources, scale, note, leg_ratio, world, residual, twists)
+    return Retargeted(clip, sources, scale, note, leg_ratio, world, residual, turns)

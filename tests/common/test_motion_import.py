@@ -88,6 +88,22 @@ def test_t_pose_source_gives_the_same_motion(tmp_path: Path, humanoid: Humanoid)
     assert np.abs(back - original).max() < 1e-3
 
 
+def test_humanoid_bvh_units_and_axes_by_hand(tmp_path: Path, humanoid: Humanoid) -> None:
+    clip = resolve_clips(["walk"])[0]
+    write_humanoid_bvh(tmp_path / "walk.bvh", clip, humanoid)
+    bvh = read_bvh(tmp_path / "walk.bvh")
+    hmap = load_joint_map("humanoid3d", humanoid.body_names)
+    inferred = retarget(bvh, humanoid, hmap)
+    # Written in centimetres, Y up with the left at -z (DeepMimic's frame): W is DeepMimic's (x, y, z) -> (x, -z, y).
+    assert inferred.scale == 0.01 and "inferred: cm" in inferred.scale_note
+    np.testing.assert_allclose(inferred.world, [[1, 0, 0], [0, 0, -1], [0, 1, 0]], atol=1e-12)
+    assert inferred.leg_ratio == pytest.approx(1.0, abs=1e-6)
+    # A wrong unit halves the leg ratio but, the root being scaled by leg length, changes nothing else.
+    given = retarget(bvh, humanoid, hmap, RetargetOptions(scale=0.02))
+    assert given.leg_ratio == pytest.approx(0.5, abs=1e-6)
+    np.testing.assert_allclose(given.clip.root_pos, inferred.clip.root_pos, atol=1e-12)
+
+
 def test_cmu_take_units_axes_and_legs_by_hand(take: Retargeted) -> None:
     assert take.scale == CMU_UNIT and "inferred: cmu" in take.scale_note
     # Y up, facing +z, left at +x (LeftHip's offset is +x): forward z -> x, left x -> y, up y -> z.
