@@ -62,6 +62,34 @@ def test_round_trip_through_bvh_keeps_body_positions(tmp_path: Path, humanoid: H
     assert np.abs(back - original).max() < 1e-3  # 1 mm at every frame and body (MuJoCo's kinematics)
 
 
+def test_z_up_source(tmp_path: Path, humanoid: Humanoid) -> None:
+    clip = resolve_clips(["walk"])[0]
+    write_humanoid_bvh(tmp_path / "z.bvh", clip, humanoid, up="z")
+    hmap = load_joint_map("humanoid3d", humanoid.body_names)
+    back = retarget(read_bvh(tmp_path / "z.bvh"), humanoid, hmap, RetargetOptions(up="z"))
+    np.testing.assert_allclose(back.world, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(back.clip.root_pos, clip.root_pos, atol=1e-6)
+    assert np.degrees(quat_geodesic_angle(back.clip.joint_rot, clip.joint_rot)).max() < 1e-3
+
+
+def test_cmu_map_reads_the_motionbuilder_naming(tmp_path: Path, take: Retargeted, humanoid: Humanoid) -> None:
+    # The other CMU release names the same joints differently; there "LeftShoulder" is the collar.
+    renames = {"LeftHip": "LeftUpLeg", "LeftKnee": "LeftLeg", "LeftAnkle": "LeftFoot", "LeftToe": "LeftToeBase",
+               "LeftCollar": "LeftShoulder", "LeftShoulder": "LeftArm", "LeftElbow": "LeftForeArm",
+               "LeftWrist": "LeftHand", "Chest2": "Spine1"}  # fmt: skip
+    lines = []
+    for line in TAKE.read_text().splitlines():
+        words = line.split()
+        if len(words) == 2 and words[0] in ("JOINT", "ROOT") and words[1] in renames:
+            line = line.replace(words[1], renames[words[1]])
+        lines.append(line)
+    (tmp_path / "mb.bvh").write_text("\n".join(lines) + "\n")
+    other = retarget(read_bvh(tmp_path / "mb.bvh"), humanoid, load_joint_map("cmu", humanoid.body_names))
+    assert other.sources["left_upper_arm"] == "LeftArm" and other.sources["left_thigh"] == "LeftUpLeg"
+    np.testing.assert_array_equal(other.clip.joint_rot, take.clip.joint_rot)
+    np.testing.assert_array_equal(other.clip.root_pos, take.clip.root_pos)
+
+
 def test_t_pose_source_gives_the_same_motion(tmp_path: Path, humanoid: Humanoid) -> None:
     """The same motion on a skeleton whose rest pose holds the arms out sideways (a T-pose)."""
     clip = resolve_clips(["walk"])[0]
