@@ -168,3 +168,14 @@ def test_malformed_file_names_file_line_and_problem(tmp_path: Path, kind: str) -
     message = str(e.value)
     assert message.startswith(f"{path}: line {line}: "), message
     assert words in message and "\n" not in message
+
+
+def test_child_with_position_channels_takes_its_translation_from_them() -> None:
+    # Some exporters give every joint 6 channels; the channels then replace the OFFSET as the translation.
+    six = "CHANNELS 6 Yposition Xposition Zposition Zrotation Xrotation Yrotation"
+    text = _one_joint("ZYX", (0.0, 0.0, 90.0)).replace("CHANNELS 3 Zrotation Xrotation Yrotation", six)
+    text = text.replace("0.0 0.0 0.0 0.0 0.0 90.0 0.0 0.0 0.0", "0.0 0.0 0.0 0.0 0.0 90.0 5.0 4.0 0.0 0.0 0.0 0.0")
+    bvh = parse_bvh(text, "tiny.bvh")
+    pos, _ = forward_kinematics(bvh)
+    # Root: Rx(90) (the order ZYX with (0, 0, 90)); the child's translation (x, y, z) = (4, 5, 0) -> (4, 0, 5).
+    np.testing.assert_allclose(pos[0, 1], [4.0, 0.0, 5.0], atol=1e-12)
