@@ -1,0 +1,107 @@
+"""``watch-policy``: a trained policy tracking a clip, the reference as a translucent ghost.
+
+The policy is rebuilt from a run's checkpoint by its learner's ``export.py`` (as the comparison report does) and played
+from t = 0 like the evaluator, until the episode fails or ``--frames`` pass. Where a display exists the recorded
+episode loops in MuJoCo's interactive viewer; otherwise (or with ``--out``) it is written as an MP4 by the report's
+offscreen renderer.
+
+Examples::
+
+    watch-policy runs/st-walk                                   # the viewer, or runs/st-walk/watch_walk.mp4
+    watch-policy runs/st-walk --motions take.txt --out take.mp4 # the walk policy on an imported clip
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from common.config import ConfigError
+from common.humanoid import Humanoid
+from common.motion import MotionFormatError
+from common.motion_dataset import load_motions
+from report import render
+from report.runs import ReportError, export_module, load_run
+
+
+def has_display() -> bool:
+    """True where an interactive window can open (an X11 or Wayland display, or macOS / Windows)."""
+    return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def view(sim_qpos: np.ndarray, ref_qpos: np.ndarray, humanoid: Humanoid, fps: float) -> None:
+    """Loops the recorded episode in MuJoCo's viewer until its window is closed; the reference as a ghost.
+
+    Args:
+        sim_qpos: The simulated character per frame. Shape: (T, nq).
+        ref_qpos: The reference per frame. Shape: (T, nq).
+        humanoid: The model.
+        fps: Playback rate.
+    """
+    import mujoco
+    import mujoco.viewer
+
+    model = humanoid.model
+    d_sim, d_ref = mujoco.MjData(model), mujoco.MjData(model)
+    with mujoco.viewer.launch_passive(model, d_sim) as viewer:
+        t = 0
+        while viewer.is_running():
+            start = time.perf_counter()
+            d_sim.qpos[:], d_ref.qpos[:] = sim_qpos[t], ref_qpos[t]
+            mujoco.mj_kinematics(model, d_sim)
+            mujoco.mj_kinematics(model, d_ref)
+            with viewer.lock():
+                viewer.user_scn.ngeom = 0
+                mujoco.mjv_addGeoms(model, d_ref, viewer.opt, viewer.perturb, mujoco.mjtCatBit.mjCAT_DYNAMIC,
+                                    viewer.user_scn)  # fmt: skip
+                for g in range(viewer.user_scn.ngeom):
+                    viewer.user_scn.geoms[g].rgba[:] = render.GHOST_RGBA
+            viewer.sync()
+            t = (t + 1) % len(sim_qpos)
+            time.sleep(max(0.0, 1.0 / fps - (time.perf_counter() - start)))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="watch-policy", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("run", help="a training run directory")
+    parser.add_argument("--motions", nargs="+", help="motions to track (default: the run's training motions)")
+    parser.add_argument("--clip", help="which clip of the motions (default: the first)")
+    parser.add_argument("--checkpoint", type=int, help="checkpoint iteration (default: the newest)")
+    parser.add_argument("--frames", type=int, default=512, help="most steps played (default 512)")
+    parser.add_argument("--out", help="write an MP4 here instead of opening the viewer")
+    parser.add_argument("--size", type=int, nargs=2, default=(480, 360), metavar=("W", "H"), help="video pixels")
+    args = parser.parse_args(argv)
+    try:
+        run = load_run(args.run, args.checkpoint)
+        humanoid = Humanoid(run.physics())
+        library = load_motions(args.motions or run.motions, humanoid)
+        clip = library.clip_index(args.clip) if args.clip else 0
+        policy = export_module(run.learner).load_eval_policy(run.path, run.checkpoint, humanoid, library)
+        sim, ref = render.record_rollout(policy, library, humanoid, clip, args.frames, run.eval_config())
+    except (ReportError, MotionFormatError, ConfigError, KeyError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    fps = humanoid.physics.control_hz
+    note = f"{run.label} on {library.names[clip]}: {len(sim)} frames before the episode ended or --frames"
+    if args.out is None and has_display():
+        print(note + "; close the viewer window to quit")
+        view(sim, ref, humanoid, fps)
+        return 0
+    out = Path(args.out or Path(args.run) / f"watch_{library.names[clip]}.mp4")
+    backend, why = render.find_backend()
+    if backend is None:
+        print(f"error: no display and {why}", file=sys.stderr)
+        return 3
+    render.video(sim, ref, humanoid, out, backend, fps=fps, width=args.size[0], height=args.size[1])
+    print(f"{note}; wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
