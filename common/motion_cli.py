@@ -120,8 +120,8 @@ def _render(args: argparse.Namespace, humanoid: Humanoid) -> int:
     """Kinematic playback through the report's renderer (a child process with a working MuJoCo GL backend)."""
     from pathlib import Path
 
+    from common import render
     from common.motion_import.pipeline import playback_qpos
-    from report import render
 
     library = load_motions(args.motions, humanoid)
     clip = library.clip_index(args.clip) if args.clip else 0

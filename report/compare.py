@@ -23,6 +23,7 @@ from typing import Any
 
 import torch
 
+from common import render
 from common.config import ConfigError
 from common.evaluate import EvalConfig, EvalResult, Policy, evaluate
 from common.humanoid import Humanoid
@@ -30,7 +31,7 @@ from common.motion import MotionFormatError
 from common.motion_dataset import load_motions
 from common.motion_library import MotionLibrary
 from common.pushes import PushConfig
-from report import figures, render, tables
+from report import figures, tables
 from report.html import markdown_to_html
 from report.runs import ReportError, Run, export_module, load_run, unique_labels
 

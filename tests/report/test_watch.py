@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 import torch
 
+from common import render
 from ppo.train import main as train_ppo
-from report import render, watch
-from tests.report.test_render import _read_video
+from report import watch
+from tests.common.test_render import _read_video
 
 ROOT = Path(__file__).resolve().parents[2]
 
