@@ -33,7 +33,7 @@ def learner() -> Iterator[SuperTrackLearner]:
 
 def test_a_frame_holds_the_state_the_targets_and_the_reference_they_aim_for(learner: SuperTrackLearner) -> None:
     learner.collect()
-    prev = learner._res
+    prev = learner.collector.source.res
     learner.collect()
     n = learner.cfg.train_envs
     row = {k: v[-1] for k, v in learner.train_buffer.latest(1).items()}
@@ -47,7 +47,7 @@ def test_a_frame_holds_the_state_the_targets_and_the_reference_they_aim_for(lear
     noise = math.radians(learner.cfg.policy.alpha_deg) * learner.cfg.policy.sigma
     assert 0.1 * noise < np.median(angle) < 5 * noise
     # The next frame starts with the state this step reached (S_{i+1}; a reset state where the episode ended).
-    now = learner._res
+    now = learner.collector.source.res
     learner.collect()
     np.testing.assert_array_equal(learner.train_buffer.latest(1)["sim"][-1], pack_character_state(now.sim)[:n])
 
@@ -102,7 +102,7 @@ def test_the_evaluated_policy_is_the_weight_average_of_the_live_one(learner: Sup
             expected = {k: decay * expected[k] + (1 - decay) * v.detach() for k, v in live.items()}
     for k, v in learner.policy_average.module.named_parameters():
         torch.testing.assert_close(v, expected[k])
-    live_out = learner.actor.deterministic(learner._res)
-    avg_out = learner.eval_actor.deterministic(learner._res)
+    live_out = learner.actor.deterministic(learner.collector.source.res)
+    avg_out = learner.eval_actor.deterministic(learner.collector.source.res)
     assert not np.allclose(live_out, avg_out)
-    np.testing.assert_array_equal(learner.policy()(learner._res), avg_out)
+    np.testing.assert_array_equal(learner.policy()(learner.collector.source.res), avg_out)

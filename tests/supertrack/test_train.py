@@ -58,7 +58,8 @@ def test_debug_run_writes_config_metrics_checkpoint_and_evaluates(runs: dict[str
     assert losses["perf/samples_per_s"] > 0.0 and "perf/world_model_step_s" in losses
     state = torch.load(a / "checkpoints" / "latest.pt", weights_only=False)
     learner = state["learner"]
-    for key in ("world_model", "policy", "world_optimizer", "policy_optimizer", "gym", "train_buffer", "val_buffer"):
+    for key in ("world_model", "policy", "world_optimizer", "policy_optimizer", "collector", "train_buffer",
+                "val_buffer"):
         assert key in learner
     assert "local_norm.mean" in learner["world_model"] and state["iteration"] == 6
 
@@ -119,7 +120,8 @@ def test_clip_weights_reach_the_gym_and_a_wrong_clip_name_fails_with_the_file_an
     assert not (tmp_path / "x").exists()  # refused before the run directory is made: a corrected retry can use it
     weights = "collect.clip_weights={walk: 10}"
     _train(tmp_path / "y", "--motions", "walk", "run", "--max-iterations", "1", "--set", weights)
-    gym = torch.load(tmp_path / "y" / "checkpoints" / "latest.pt", weights_only=False)["learner"]["gym"]
+    learner = torch.load(tmp_path / "y" / "checkpoints" / "latest.pt", weights_only=False)["learner"]
+    gym = learner["collector"]["sources"][0]["gym"]
     np.testing.assert_array_equal(gym["clip_weights"], [10.0, 1.0])
 
 
@@ -188,3 +190,73 @@ def test_help_explains_every_option() -> None:
 def test_debug_run_on_cuda(tmp_path: Path) -> None:
     _train(tmp_path / "gpu", "--device", "cuda", "--max-iterations", "3")
     assert (tmp_path / "gpu" / "checkpoints" / "latest.pt").is_file()
+
+
+@pytest.fixture(scope="module")
+def collector_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """With a collector process: runs c and d 4 iterations straight, run e 2 iterations, then resumed to 4."""
+    root = tmp_path_factory.mktemp("collector")
+    on = ("--set", "collect.processes=1", "--max-iterations", "4")
+    _train(root / "c", *on)
+    _train(root / "d", *on)
+    _train(root / "e", *on[:2], "--max-iterations", "2")
+    _train(root / "e", "--resume", *on)
+    return {k: root / k for k in "cde"}
+
+
+def _assert_same_tensors(a: object, b: object, where: str = "") -> None:
+    """Every tensor and array of two nested checkpoint states equal, exactly."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), where
+        for k in a:
+            _assert_same_tensors(a[k], b[k], f"{where}.{k}")
+    elif isinstance(a, torch.Tensor):
+        assert torch.equal(a, b), where
+    elif isinstance(a, np.ndarray):
+        np.testing.assert_array_equal(a, b, err_msg=where)
+
+
+@pytest.mark.parametrize("other", ["d", "e"])
+def test_collector_runs_of_one_seed_and_a_resumed_one_give_identical_checkpoints(collector_runs: dict[str, Path],
+                                                                                 other: str) -> None:  # fmt: skip
+    c, o = (torch.load(collector_runs[k] / "checkpoints" / "latest.pt", weights_only=False) for k in ("c", other))
+    assert c["iteration"] == o["iteration"] == 4 and c["samples"] == o["samples"]
+    _assert_same_tensors(c["learner"], o["learner"])  # networks, optimisers, buffers, gym states, the block in flight
+    assert c["learner"]["collector"]["pending"] is not None
+    mc, mo = (read_metrics(collector_runs[k] / "metrics.jsonl") for k in ("c", other))
+    # Evaluations fall on other iterations after a resume (every 4 iterations from the start of each part).
+    logged = [{k: v for k, v in _line(m, 4, "losses/policy").items() if k.startswith(("losses/", "charts/"))}
+              for m in (mc, mo)]  # fmt: skip
+    assert logged[0] == logged[1] and "charts/buffer_age" in logged[0]
+    assert mc[-1]["eval/mpjpe_g"] == mo[-1]["eval/mpjpe_g"]
+
+
+def test_the_collector_collects_with_the_weights_one_update_behind(
+    runs: dict[str, Path], collector_runs: dict[str, Path]
+) -> None:
+    """Same frames as the in-process loop until the policy's weights first change (update 2: update 1 is W-only)."""
+    a, c = (torch.load(r / "checkpoints" / "latest.pt", weights_only=False)["learner"] for r in (
+        runs["a"], collector_runs["c"]))  # fmt: skip
+    rows_a, rows_c = a["train_buffer"]["rows"], c["train_buffer"]["rows"]
+    # Rows 0-33: the warm-up; row 34: iteration 2's block; row 35: iteration 3's, collected with update 2's policy in
+    # process and with update 1's (= the initial one) by the worker.
+    np.testing.assert_array_equal(rows_a["target_rot"][:35], rows_c["target_rot"][:35])
+    np.testing.assert_array_equal(rows_a["sim"][:36], rows_c["sim"][:36])  # S_35 is still reached by equal targets
+    assert not np.array_equal(rows_a["target_rot"][35], rows_c["target_rot"][35])
+    np.testing.assert_array_equal(rows_a["collected_at"][33:37, 0], [0, 1, 2, 3])
+    np.testing.assert_array_equal(rows_c["collected_at"][33:37, 0], [0, 0, 1, 2])
+
+
+def test_replay_ratio_and_buffer_age_by_hand(runs: dict[str, Path], collector_runs: dict[str, Path]) -> None:
+    """Debug preset: 4 training characters, warm-up 34 steps, then 1 step per iteration; W reads 16 x 8 frames per
+    update, the policy 8 x 8 from update 2 on; lines every 2 iterations."""
+    for path in (runs["a"], collector_runs["c"]):
+        first, second = (_line(read_metrics(path / "metrics.jsonl"), i, "charts/replay_ratio_w") for i in (2, 4))
+        assert first["charts/replay_ratio_w"] == pytest.approx(2 * 128 / (34 * 4 + 4))  # 1.829
+        assert first["charts/replay_ratio_policy"] == pytest.approx(64 / (34 * 4 + 4))
+        assert second["charts/replay_ratio_w"] == pytest.approx(2 * 128 / 8)
+        assert second["charts/replay_ratio_policy"] == pytest.approx(2 * 64 / 8)
+    # With the worker every frame read in iterations 1-2 was collected with the initial weights: W's 128 reads in
+    # update 1 are 0 updates old, its 128 and the policy's 64 in update 2 are 1 update old.
+    line = _line(read_metrics(collector_runs["c"] / "metrics.jsonl"), 2, "charts/buffer_age")
+    assert line["charts/buffer_age"] == pytest.approx((0 * 128 + 1 * 192) / 320)
