@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from common.humanoid import Humanoid
 from common.logs import read_metrics
 from supertrack.config import SuperTrackConfig
 from supertrack.export import load_eval_policy
+from supertrack.learner import SuperTrackLearner
 from supertrack.train import build_parser, run
 
 DEBUG = str(Path(__file__).resolve().parents[2] / "configs" / "supertrack" / "debug.yaml")
@@ -260,3 +262,16 @@ def test_replay_ratio_and_buffer_age_by_hand(runs: dict[str, Path], collector_ru
     # update 1 are 0 updates old, its 128 and the policy's 64 in update 2 are 1 update old.
     line = _line(read_metrics(collector_runs["c"] / "metrics.jsonl"), 2, "charts/buffer_age")
     assert line["charts/buffer_age"] == pytest.approx((0 * 128 + 1 * 192) / 320)
+
+
+def test_the_compile_warm_up_stays_off_the_training_clock_and_budget(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A 5 s warm-up against a 3 s budget: counted, the run would stop after its first iteration."""
+    monkeypatch.setattr(SuperTrackLearner, "warm_up", lambda self: time.sleep(5.0))
+    _train(tmp_path / "w", "--max-minutes", "0.05", "--set", "train.max_iterations=null")
+    records = read_metrics(tmp_path / "w" / "metrics.jsonl")
+    assert records[0]["perf/compile_s"] >= 5.0
+    state = torch.load(tmp_path / "w" / "checkpoints" / "latest.pt", weights_only=False)
+    assert state["iteration"] >= 2 and 3.0 <= state["train_seconds"] < 5.0
+    assert records[-1]["wall_clock_s"] == state["train_seconds"]
