@@ -106,6 +106,16 @@ def test_unknown_config_key_fails_with_its_name(tmp_path: Path) -> None:
         _train(tmp_path / "x", "--set", "policy.lrr=1")
 
 
+@pytest.mark.parametrize(("value", "message"), [
+    ("-1", r"collect\.steps_per_iteration must be >= 1, warmup_steps >= 0 and processes >= 0"),
+    ("7", r"collect\.processes \(7\) exceeds gym\.num_envs \(6\)"),
+])  # fmt: skip
+def test_a_bad_collector_count_fails_with_its_name(tmp_path: Path, value: str, message: str) -> None:
+    with pytest.raises(SystemExit, match=message):
+        _train(tmp_path / "x", "--set", f"collect.processes={value}")
+    assert not (tmp_path / "x" / "checkpoints").exists()
+
+
 @pytest.mark.parametrize(("key", "value", "message"), [
     ("policy.step_decay", "1.5", r"policy\.step_decay must be in \(0, 1\], got 1\.5"),
     ("policy.average_decay", "1.0", r"policy\.average_decay must be in \[0, 1\), got 1\.0"),
