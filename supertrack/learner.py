@@ -141,8 +141,7 @@ class SuperTrackLearner:
         self._push(block)
         for k, v in block.charts.items():
             self._charts[k] = self._charts.get(k, 0.0) + v
-        new = block.steps * self.cfg.train_envs
-        self._rates["new"] = self._rates.get("new", 0.0) + new
+        self._rates["new"] = self._rates.get("new", 0.0) + block.steps * self.cfg.train_envs
         return block.steps * self.gym_envs
 
     @property
@@ -198,6 +197,7 @@ class SuperTrackLearner:
         }  # fmt: skip
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        state = self._upgrade(state)
         self.world_model.load_state_dict(state["world_model"])
         self.policy_net.load_state_dict(state["policy"])
         self.world_optimizer.load_state_dict(state["world_optimizer"])
@@ -209,6 +209,24 @@ class SuperTrackLearner:
         if self.policy_average is not None:
             self.policy_average.load_state_dict(state["policy_average"])
         self._new_guards()
+
+    def _upgrade(self, state: dict[str, Any]) -> dict[str, Any]:
+        """A state written before :mod:`common.collect` (a ``gym`` entry, frames without ``collected_at``) in today's
+        form, for the tools that read old runs (e.g. ``benchmarks/world_model_bodies.py``): the gym becomes the
+        in-process collector's, with this collector's noise generator (the noise came from the learner's then), and
+        the frames count as collected before the first update."""
+        if "collector" in state or "gym" not in state:
+            return state
+        if self.cfg.collect.processes != 0:
+            raise ValueError("a checkpoint from before collect.processes existed loads with collect.processes=0 only")
+        rng = self.collector.state_dict()["sources"][0]["rng"]
+        upgraded = {k: v for k, v in state.items() if k != "gym"}
+        upgraded["collector"] = {"sources": [{"gym": state["gym"], "rng": rng}], "pending": None}
+        for name in ("train_buffer", "val_buffer"):
+            rows = dict(state[name]["rows"])
+            rows.setdefault("collected_at", np.zeros(np.shape(rows["episode_id"]), dtype=np.int64))
+            upgraded[name] = {**state[name], "rows": rows}
+        return upgraded
 
     def init_networks(self, learner_state: dict[str, Any]) -> None:
         """Starts from another run's world model and policy (with the normalisers they were trained with).

@@ -15,6 +15,7 @@ import torch
 from common.config import load_config
 from common.humanoid import Humanoid
 from common.logs import read_metrics
+from common.motion_dataset import load_motions
 from supertrack.config import SuperTrackConfig
 from supertrack.export import load_eval_policy
 from supertrack.learner import SuperTrackLearner
@@ -285,3 +286,23 @@ def test_the_compile_warm_up_stays_off_the_training_clock_and_budget(
     state = torch.load(tmp_path / "w" / "checkpoints" / "latest.pt", weights_only=False)
     assert state["iteration"] >= 2 and 3.0 <= state["train_seconds"] < 5.0
     assert records[-1]["wall_clock_s"] == state["train_seconds"]
+
+
+def test_a_checkpoint_from_before_the_collector_still_loads(runs: dict[str, Path]) -> None:
+    """benchmarks/world_model_bodies.py reads old runs: a 'gym' entry and frames without collected_at."""
+    state = torch.load(runs["a"] / "checkpoints" / "latest.pt", weights_only=False)["learner"]
+    old = {k: v for k, v in state.items() if k != "collector"}
+    old["gym"] = state["collector"]["sources"][0]["gym"]
+    for name in ("train_buffer", "val_buffer"):
+        old[name] = {**state[name], "rows": {k: v for k, v in state[name]["rows"].items() if k != "collected_at"}}
+    cfg = load_config(SuperTrackConfig, runs["a"] / "config.yaml")
+    humanoid = Humanoid(cfg.gym.physics)
+    learner = SuperTrackLearner(cfg, humanoid, load_motions(["walk"], humanoid), np.random.default_rng(0))
+    try:
+        learner.load_state_dict(old)
+        reloaded = learner.state_dict()
+    finally:
+        learner.close()
+    _assert_same_tensors(reloaded["collector"]["sources"][0]["gym"], old["gym"])
+    np.testing.assert_array_equal(reloaded["val_buffer"]["rows"]["sim"], state["val_buffer"]["rows"]["sim"])
+    assert not reloaded["train_buffer"]["rows"]["collected_at"].any()
