@@ -166,7 +166,6 @@ def sum_charts(charts: list[dict[str, float]]) -> dict[str, float]:
 class LocalCollector:
     """``processes = 0``: one :class:`FrameSource` in the learner's process, stepped when a block is asked for."""
 
-
     def __init__(self, spec: CollectorSpec) -> None:
         self.spec = spec
         self.source = FrameSource(spec)
