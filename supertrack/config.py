@@ -118,8 +118,8 @@ class PolicyConfig:
             (``supertrack.models.root_offset_features``); the paper's policy does not, and cannot correct drift.
         compile: Run the rollout step through ``torch.compile`` (as ``world_model.compile``).
         bf16: Run the networks' layers under bf16 autocast in the policy's update step (the policy and W's forward
-            through which it learns) and in the gym's actor; the rollout's integration, the loss and the optimiser
-            stay float32.
+            through which it learns) and in the gym's actor (on the CPU only with AVX-512 BF16 or AMX); the rollout's
+            integration, the loss and the optimiser stay float32.
         step_decay: Weight decay^i of rollout step i in the tracking loss (ControlVAE: 0.95; the paper: 1, a plain
             mean), so that the later steps, where W's error has compounded, pull less.
         average_decay: Decay of an exponential moving average of the policy's weights (Polyak averaging,

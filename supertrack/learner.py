@@ -115,9 +115,10 @@ class SuperTrackLearner:
         self._rates: dict[str, float] = {}
         self.updates = 0
         c = cfg.collect
-        # The gym's own actor: a CPU copy of the policy (in a worker process when collect.processes >= 1).
+        # The gym's own actor: a CPU copy of the policy (in a worker process when collect.processes >= 1), in bf16
+        # only where the CPU has it natively (a GPU run's CPU may emulate it, far slower than float32).
         factory = functools.partial(GymActor, policy=copy.deepcopy(self.policy_net).cpu(), alpha=cfg.policy.alpha,
-                                    sigma=cfg.policy.sigma, bf16=cfg.policy.bf16)  # fmt: skip
+                                    sigma=cfg.policy.sigma, bf16=cfg.policy.bf16 and _native_bf16())  # fmt: skip
         spec = CollectorSpec(gym=gym_config(cfg), library=library, humanoid=humanoid, actor_factory=factory,
                              fields=gym_fields(n_bodies, n_joints), noise_seed=cfg.train.seed,
                              max_steps=max(c.steps_per_iteration, c.warmup_steps),
