@@ -26,9 +26,11 @@ sys.path.insert(0, str(ROOT))
 from common.checkpoint import CheckpointError  # noqa: E402
 from common.config import load_config  # noqa: E402
 from common.evaluate import reference_policy  # noqa: E402
+from common.gym import TrackingGym  # noqa: E402
 from common.humanoid import Humanoid  # noqa: E402
 from common.motion_dataset import load_motions  # noqa: E402
 from common.run import read_checkpoint  # noqa: E402
+from common.training import gym_config  # noqa: E402
 from supertrack.config import SuperTrackConfig  # noqa: E402
 from supertrack.learner import SuperTrackLearner  # noqa: E402
 from supertrack.rollout import world_model_rollout  # noqa: E402
@@ -54,6 +56,8 @@ def main() -> None:
     humanoid = Humanoid(cfg.gym.physics)
     library = load_motions(list(cfg.train.motions), humanoid)
     learner = SuperTrackLearner(cfg, humanoid, library, np.random.default_rng(0))
+    # A gym of the run's settings plays the policy (the learner's own may live in a collector process).
+    gym = TrackingGym(gym_config(cfg), library, humanoid)
     try:
         learner.load_state_dict(state["learner"])
         windows = learner.val_buffer.sample_windows(args.windows, 2, np.random.default_rng(1))
@@ -68,7 +72,7 @@ def main() -> None:
         w_vel, base_vel = err(pred.vel, nxt.vel), err(now.vel, nxt.vel)
         w_ang, base_ang = err(pred.angvel, nxt.angvel), err(now.angvel, nxt.angvel)
 
-        gym, policy = learner.gym, learner.policy()
+        policy = learner.policy()
 
         def speeds(act) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
             """Mean body angular speeds (sim, ref) and mean |PD target change| per frame per hinge (act, ref)."""
@@ -88,6 +92,7 @@ def main() -> None:
         s, r, rate, ref_rate = speeds(policy)
         s_open = speeds(lambda res: reference_policy(res, humanoid))[0]
     finally:
+        gym.close()
         learner.close()
     print(f"{checkpoint}: W one-frame error on {args.windows} held-back windows; policy over {args.frames} frames")
     header = f"{'body':<18}{'W vel':>8}{'v=const':>9}{'W angvel':>10}{'w=const':>9}"

@@ -46,7 +46,8 @@ class TrainConfig:
         device: ``cpu`` or ``cuda`` (``cuda:1``, ...) for the networks; the physics always runs on the CPU.
         torch_threads: CPU threads torch may use (the physics uses the gym's own threads). 1 by default: with 2,
             torch's spinning threads made updates 3-10x slower whenever the other core was busy (measured here).
-        max_minutes: Stop after this much training wall-clock time (evaluation time excluded); None: no limit.
+        max_minutes: Stop after this much training wall-clock time (evaluation and torch.compile warm-up excluded);
+            None: no limit.
         max_samples: Stop after this many environment samples (character steps); None: no limit.
         max_iterations: Stop after this many iterations; None: no limit.
         log_every: Iterations between metric lines.
@@ -97,6 +98,9 @@ class Learner(Protocol):
         """Networks, optimisers, normalisers, gym and buffer state: all needed to continue exactly."""
 
     def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+    # Optional: ``warm_up() -> None``, work to do before the training clock starts (e.g. ``torch.compile``); the
+    # Trainer calls it when the learner has it and logs its duration as ``perf/compile_s``.
 
 
 def gym_config(cfg: Any) -> GymConfig:
@@ -227,6 +231,12 @@ class Trainer:
         next_eval = self._next(t.eval_every_minutes, t.eval_every_iterations)
         next_ckpt = self.train_seconds + 60.0 * t.checkpoint_every_minutes
         pending: dict[str, list[float]] = {}
+        warm_up = getattr(self.learner, "warm_up", None)
+        if warm_up is not None:
+            # Compilation is a fixed cost per process start, not training: it stays off the clock and the budget.
+            start = time.perf_counter()
+            warm_up()
+            pending["perf/compile_s"] = [time.perf_counter() - start]
         evaluated_at = -1
         try:
             while not self._budget_spent() and not (stop is not None and stop()):

@@ -6,6 +6,8 @@ The target rotation is computed by the same torch function as in training
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,7 +16,7 @@ import torch
 from common.gym import StepResult
 from common.humanoid import Humanoid, hinges_to_joint_rotations, joint_rotations_to_hinges
 from supertrack.models import Policy
-from supertrack.state import BodyState, target_rotations
+from supertrack.state import BodyState, pack_character_state, target_rotations
 
 
 @dataclass
@@ -37,12 +39,13 @@ class Actor:
 
     Args:
         humanoid: The model.
-        policy: The policy network (the live one: the gym always acts with the latest weights).
+        policy: The policy network.
         alpha: Offset scale (rad).
+        bf16: Run the network under bf16 autocast (its outputs and the targets stay float32).
     """
 
-    def __init__(self, humanoid: Humanoid, policy: Policy, alpha: float) -> None:
-        self.humanoid, self.policy, self.alpha = humanoid, policy, alpha
+    def __init__(self, humanoid: Humanoid, policy: Policy, alpha: float, bf16: bool = False) -> None:
+        self.humanoid, self.policy, self.alpha, self.bf16 = humanoid, policy, alpha, bf16
 
     @torch.no_grad()
     def __call__(self, res: StepResult, noise: np.ndarray | None = None) -> Action:
@@ -54,7 +57,9 @@ class Actor:
         """
         device = next(self.policy.parameters()).device
         kin_joint_rot = hinges_to_joint_rotations(self.humanoid, res.ref_next.qpos).astype(np.float32)
-        offsets = self.policy(BodyState.from_character(res.sim, device), BodyState.from_character(res.ref_next, device))
+        with torch.autocast(device.type, torch.bfloat16) if self.bf16 else contextlib.nullcontext():
+            offsets = self.policy(BodyState.from_character(res.sim, device),
+                                  BodyState.from_character(res.ref_next, device)).float()  # fmt: skip
         if noise is not None:
             offsets = offsets + torch.as_tensor(noise, dtype=offsets.dtype, device=device) * self.policy.dof_mask
         target = target_rotations(offsets, torch.as_tensor(kin_joint_rot, device=device), self.alpha).cpu().numpy()
@@ -64,3 +69,34 @@ class Actor:
     def deterministic(self, res: StepResult) -> np.ndarray:
         """The evaluator's policy: hinge targets without exploration noise. Shape: (N, nu)."""
         return self(res).hinge_targets
+
+
+class GymActor:
+    """SuperTrack's :class:`common.collect.FrameActor`: a CPU copy of the policy plus noise, and its frame fields.
+
+    The frame that starts at gym state i holds S_i (``sim``), K_{i+1} (``kin_next``), k_{i+1}
+    (``kin_next_joint_rot``) and the applied targets T_i (``target_rot``): see :mod:`supertrack.learner`.
+
+    Args:
+        humanoid: The model.
+        policy: A policy network of the learner's sizes (its weights are replaced by :meth:`load_weights`).
+        alpha: Offset scale (rad).
+        sigma: Exploration noise std (units of o).
+        bf16: Act under bf16 autocast.
+    """
+
+    def __init__(self, humanoid: Humanoid, policy: Policy, alpha: float, sigma: float, bf16: bool = False) -> None:
+        self.actor = Actor(humanoid, policy.cpu(), alpha, bf16)
+        self.sigma = sigma
+
+    def load_weights(self, weights: Mapping[str, torch.Tensor]) -> None:
+        self.actor.policy.load_state_dict(weights)
+
+    def __call__(self, res: StepResult, rng: np.random.Generator) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Hinge targets (N, nu) and the frame's fields {name: (N, ...)}."""
+        n, n_joints = res.sim.qpos.shape[0], self.actor.policy.num_joints
+        action = self.actor(res, self.sigma * rng.standard_normal((n, n_joints, 3)))
+        return action.hinge_targets, {
+            "sim": pack_character_state(res.sim), "kin_next": pack_character_state(res.ref_next),
+            "kin_next_joint_rot": action.kin_next_joint_rot, "target_rot": action.target_rot,
+        }  # fmt: skip

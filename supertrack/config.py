@@ -78,7 +78,8 @@ class WorldModelConfig:
         steps_per_iteration: W steps per iteration (the paper: 1).
         weights: Loss weights.
         compile: Run the rollout step through ``torch.compile`` (about 2x faster on a CPU; needs a C++ compiler
-            there; the first step of a run compiles, a minute or two).
+            there; it compiles before the training clock starts, a minute or two, logged as ``perf/compile_s``).
+        bf16: Run W's layers under bf16 autocast in its update step (integration, loss and optimiser stay float32).
     """
 
     hidden: tuple[int, ...] = (1024, 1024, 1024, 1024, 1024)
@@ -90,6 +91,7 @@ class WorldModelConfig:
     steps_per_iteration: int = 1
     weights: WorldLossWeights = field(default_factory=WorldLossWeights)
     compile: bool = False
+    bf16: bool = False
 
     def __post_init__(self) -> None:
         if self.window < 2 or self.batch < 1 or not self.hidden or self.steps_per_iteration < 1:
@@ -115,6 +117,9 @@ class PolicyConfig:
         root_offset: The policy also reads where the reference root is relative to the simulated one
             (``supertrack.models.root_offset_features``); the paper's policy does not, and cannot correct drift.
         compile: Run the rollout step through ``torch.compile`` (as ``world_model.compile``).
+        bf16: Run the networks' layers under bf16 autocast in the policy's update step (the policy and W's forward
+            through which it learns) and in the gym's actor (on the CPU only with AVX-512 BF16 or AMX); the rollout's
+            integration, the loss and the optimiser stay float32.
         step_decay: Weight decay^i of rollout step i in the tracking loss (ControlVAE: 0.95; the paper: 1, a plain
             mean), so that the later steps, where W's error has compounded, pull less.
         average_decay: Decay of an exponential moving average of the policy's weights (Polyak averaging,
@@ -134,6 +139,7 @@ class PolicyConfig:
     weights: PolicyLossWeights = field(default_factory=PolicyLossWeights)
     root_offset: bool = False
     compile: bool = False
+    bf16: bool = False
     step_decay: float = 1.0
     average_decay: float = 0.0
 
@@ -183,15 +189,20 @@ class CollectConfig:
         warmup_steps: Gym control steps before the first update (at least both windows).
         clip_weights: Sampling weight of a clip when an episode starts, by clip name (clips not named: 1; empty:
             uniform). The paper oversampled walk 10x in its locomotion set: ``{walk: 10}``.
+        processes: Collector processes beside the learner (:mod:`common.collect`), each stepping about
+            gym.num_envs / processes characters with a copy of the policy; iteration k + 1's frames are collected
+            with the weights update k starts from while update k runs (deterministic: one seed, one result). 0: the
+            gym steps in the learner's process between updates, with the newest weights.
     """
 
     steps_per_iteration: int = 1
     warmup_steps: int = 64
     clip_weights: dict[str, float] = field(default_factory=dict)
+    processes: int = 0
 
     def __post_init__(self) -> None:
-        if self.steps_per_iteration < 1 or self.warmup_steps < 0:
-            raise ValueError("collect.steps_per_iteration must be >= 1 and warmup_steps >= 0")
+        if self.steps_per_iteration < 1 or self.warmup_steps < 0 or self.processes < 0:
+            raise ValueError("collect.steps_per_iteration must be >= 1, warmup_steps >= 0 and processes >= 0")
 
 
 @dataclass(frozen=True)
@@ -249,6 +260,8 @@ class SuperTrackConfig:
             raise ValueError(
                 "buffer.val_capacity must hold more steps per held-back character than the longest horizon"
             )
+        if self.collect.processes > self.gym.num_envs:
+            raise ValueError(f"collect.processes ({self.collect.processes}) exceeds gym.num_envs ({self.gym.num_envs})")
         if self.collect.warmup_steps < longest:
             raise ValueError(f"collect.warmup_steps must be >= the longest window ({longest})")
 

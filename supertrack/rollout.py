@@ -65,18 +65,57 @@ class Steps:
     policy: Callable[..., tuple[Tensor, Tensor, Tensor, Tensor, Tensor]] = policy_world_step
 
 
-def compile_steps(backend: str = "inductor") -> Steps:
-    """Both step functions through ``torch.compile`` (fixed shapes: batch and body counts never change in a run).
+def bf16_autocast(step: Callable[..., tuple[Tensor, ...]], device_type: str) -> Callable[..., tuple[Tensor, ...]]:
+    """``step`` with the networks' layers in bf16 and float32 outputs.
 
-    Fuses the many small element-wise operations of the rotations, the features and the integrator into a few
-    kernels, forward and backward: the policy step runs about twice as fast on a 2-core CPU. The first call of each
-    compiles (a minute or two on a CPU, seconds with a warm cache) and needs a C++ compiler on the CPU.
+    Autocast moves only matrix products (``nn.Linear``) to bf16; the rotations, features and the integrator here
+    are element-wise, so they stay float32 (a network's bf16 output meets a float32 normaliser and is promoted back).
 
     Args:
+        step: :func:`world_model_step` or :func:`policy_world_step`.
+        device_type: ``"cpu"`` or ``"cuda"``.
+    """
+
+    def autocast_step(*args: object) -> tuple[Tensor, ...]:
+        with torch.autocast(device_type, dtype=torch.bfloat16):
+            out = step(*args)
+        return tuple(x.float() for x in out)
+
+    return autocast_step
+
+
+def make_steps(compile_world: bool = False, compile_policy: bool = False, bf16_world: bool = False,
+               bf16_policy: bool = False, device_type: str = "cpu", backend: str = "inductor") -> Steps:  # fmt: skip
+    """The step functions, each optionally under bf16 autocast and through ``torch.compile``.
+
+    ``torch.compile`` fuses the many small element-wise operations of the rotations, the features and the
+    integrator into a few kernels, forward and backward: the policy step runs about twice as fast on a 2-core CPU.
+    Shapes are fixed (batch and body counts never change in a run). The first call of each compiles (a minute or
+    two on a CPU, seconds with a warm cache; the learner does it before the training clock starts) and needs a C++
+    compiler on the CPU.
+
+    Args:
+        compile_world, compile_policy: Compile :func:`world_model_step` / :func:`policy_world_step`.
+        bf16_world, bf16_policy: Run that step under :func:`bf16_autocast`.
+        device_type: The networks' device type (for autocast).
         backend: ``torch.compile`` backend; ``"eager"`` captures the graphs without generating code (tests).
     """
-    return Steps(world=torch.compile(world_model_step, dynamic=False, backend=backend),
-                 policy=torch.compile(policy_world_step, dynamic=False, backend=backend))  # fmt: skip
+    world: Callable[..., Fields] = world_model_step
+    policy: Callable[..., tuple[Tensor, Tensor, Tensor, Tensor, Tensor]] = policy_world_step
+    if bf16_world:
+        world = bf16_autocast(world, device_type)
+    if bf16_policy:
+        policy = bf16_autocast(policy, device_type)
+    if compile_world:
+        world = torch.compile(world, dynamic=False, backend=backend)
+    if compile_policy:
+        policy = torch.compile(policy, dynamic=False, backend=backend)
+    return Steps(world=world, policy=policy)
+
+
+def compile_steps(backend: str = "inductor") -> Steps:
+    """Both step functions through ``torch.compile`` (see :func:`make_steps`)."""
+    return make_steps(compile_world=True, compile_policy=True, backend=backend)
 
 
 def _fields(state: BodyState) -> Fields:

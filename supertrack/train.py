@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from common.checkpoint import CheckpointError
+from common.collect import CollectorError
 from common.config import to_dict
 from common.evaluate import EvalResult
 from common.humanoid import Humanoid
@@ -103,7 +104,10 @@ def run(argv: Sequence[str] | None = None) -> EvalResult:
     extra = {} if init is None else {"init_from": str(init[0]), "init_iteration": init[1].get("iteration")}
     cfg, run_dir, humanoid, library = setup(SuperTrackConfig, args, "supertrack", check=check, info=extra)
     rng = np.random.default_rng(cfg.train.seed)
-    learner = SuperTrackLearner(cfg, humanoid, library, rng)
+    try:
+        learner = SuperTrackLearner(cfg, humanoid, library, rng)
+    except CollectorError as e:
+        sys.exit(f"error: {e}")
     try:
         if init is not None:
             learner.init_networks(init[1]["learner"])
@@ -116,6 +120,8 @@ def run(argv: Sequence[str] | None = None) -> EvalResult:
             except ValueError as e:
                 sys.exit(f"error: {e}")
         result = trainer.run()
+    except CollectorError as e:  # the worker's traceback is in the message; the last checkpoint is intact
+        sys.exit(f"error: {e}")
     finally:
         learner.close()
     print(result.table())

@@ -16,6 +16,7 @@ from common.humanoid import Humanoid, hinges_to_joint_rotations
 from common.motion_dataset import load_motions
 from supertrack.config import SuperTrackConfig
 from supertrack.learner import SuperTrackLearner, buffer_fields
+from supertrack.rollout import make_steps
 from supertrack.state import pack_character_state
 
 DEBUG = str(Path(__file__).resolve().parents[2] / "configs" / "supertrack" / "debug.yaml")
@@ -33,7 +34,7 @@ def learner() -> Iterator[SuperTrackLearner]:
 
 def test_a_frame_holds_the_state_the_targets_and_the_reference_they_aim_for(learner: SuperTrackLearner) -> None:
     learner.collect()
-    prev = learner._res
+    prev = learner.collector.source.res
     learner.collect()
     n = learner.cfg.train_envs
     row = {k: v[-1] for k, v in learner.train_buffer.latest(1).items()}
@@ -47,7 +48,7 @@ def test_a_frame_holds_the_state_the_targets_and_the_reference_they_aim_for(lear
     noise = math.radians(learner.cfg.policy.alpha_deg) * learner.cfg.policy.sigma
     assert 0.1 * noise < np.median(angle) < 5 * noise
     # The next frame starts with the state this step reached (S_{i+1}; a reset state where the episode ended).
-    now = learner._res
+    now = learner.collector.source.res
     learner.collect()
     np.testing.assert_array_equal(learner.train_buffer.latest(1)["sim"][-1], pack_character_state(now.sim)[:n])
 
@@ -102,7 +103,57 @@ def test_the_evaluated_policy_is_the_weight_average_of_the_live_one(learner: Sup
             expected = {k: decay * expected[k] + (1 - decay) * v.detach() for k, v in live.items()}
     for k, v in learner.policy_average.module.named_parameters():
         torch.testing.assert_close(v, expected[k])
-    live_out = learner.actor.deterministic(learner._res)
-    avg_out = learner.eval_actor.deterministic(learner._res)
+    live_out = learner.actor.deterministic(learner.collector.source.res)
+    avg_out = learner.eval_actor.deterministic(learner.collector.source.res)
     assert not np.allclose(live_out, avg_out)
-    np.testing.assert_array_equal(learner.policy()(learner._res), avg_out)
+    np.testing.assert_array_equal(learner.policy()(learner.collector.source.res), avg_out)
+
+
+def test_bf16_and_float32_losses_on_one_batch_agree_within_bf16_rounding(learner: SuperTrackLearner) -> None:
+    """bf16 keeps 8 mantissa bits: each rounding is a relative error of at most 2^-9, and a network output carries a
+    few of them (inputs, weights, each layer's result), so about 2^-8. Every loss term is a mean of absolute errors
+    over thousands of values whose rounding errors are independent and partly cancel; bounding each term by a
+    relative 2^-8, the error of a single rounding of the term itself, is therefore loose but not vacuous (measured
+    here: 2e-5 to 8e-4, the largest on the offset terms, which read the network's output directly)."""
+    learner.collect()
+    windows = learner.train_buffer.sample_windows(16, 8, np.random.default_rng(1))
+    noise = 0.1 * torch.randn(16, 8, 12, 3, generator=torch.Generator().manual_seed(2))
+    terms = {}
+    for name, steps in (("fp32", make_steps()), ("bf16", make_steps(bf16_world=True, bf16_policy=True)),
+                        ("bf16 traced", make_steps(True, True, True, True, backend="eager"))):  # fmt: skip
+        learner.steps = steps
+        (w_loss, w_terms), (p_loss, p_terms) = learner.world_model_loss(windows), learner.policy_loss(windows, noise)
+        assert w_loss.dtype == p_loss.dtype == torch.float32
+        terms[name] = {k: float(v) for k, v in {**w_terms, **p_terms}.items()}
+    assert len(terms["fp32"]) == 17
+    for k, exact in terms["fp32"].items():
+        assert terms["bf16"][k] == pytest.approx(exact, rel=2**-8, abs=0), k
+        assert terms["bf16 traced"][k] == pytest.approx(terms["bf16"][k], rel=1e-6), k  # graph capture: same numbers
+    assert terms["bf16"] != terms["fp32"]  # the networks did run in bf16
+
+
+def test_the_warm_up_compiles_every_graph_training_uses_and_leaves_the_state_alone() -> None:
+    cfg = load_config(SuperTrackConfig, DEBUG, ["world_model.compile=true", "policy.compile=true",
+                                                "policy.start_iteration=0"])  # fmt: skip
+    humanoid = Humanoid(cfg.gym.physics)
+    torch.manual_seed(0)
+    learner = SuperTrackLearner(cfg, humanoid, load_motions(["walk"], humanoid), np.random.default_rng(0))
+    try:
+        learner.steps = make_steps(True, True, backend="eager")  # graph capture without code generation: fast
+        weights = {k: v.clone() for k, v in learner.world_model.state_dict().items()}
+        torch_rng, numpy_rng = torch.get_rng_state(), learner.rng.bit_generator.state
+        torch._dynamo.reset()
+        learner.warm_up()
+        captured = torch._dynamo.utils.counters["frames"]["ok"]
+        assert captured >= 2  # both step functions
+        assert torch.equal(torch.get_rng_state(), torch_rng) and learner.rng.bit_generator.state == numpy_rng
+        assert all(p.grad is None for p in [*learner.world_model.parameters(), *learner.policy_net.parameters()])
+        for k, v in learner.world_model.state_dict().items():
+            assert torch.equal(v, weights[k])
+        for _ in range(2):
+            learner.collect()
+            metrics = learner.update()
+        assert "losses/policy" in metrics
+        assert torch._dynamo.utils.counters["frames"]["ok"] == captured  # training recompiled nothing
+    finally:
+        learner.close()

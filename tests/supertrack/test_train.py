@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -14,9 +15,11 @@ import torch
 from common.config import load_config
 from common.humanoid import Humanoid
 from common.logs import read_metrics
+from common.motion_dataset import load_motions
 from common.run import read_checkpoint
 from supertrack.config import SuperTrackConfig
 from supertrack.export import load_eval_policy
+from supertrack.learner import SuperTrackLearner
 from supertrack.train import build_parser, run
 
 DEBUG = str(Path(__file__).resolve().parents[2] / "configs" / "supertrack" / "debug.yaml")
@@ -59,7 +62,8 @@ def test_debug_run_writes_config_metrics_checkpoint_and_evaluates(runs: dict[str
     assert losses["perf/samples_per_s"] > 0.0 and "perf/world_model_step_s" in losses
     state = read_checkpoint(a)[1]
     learner = state["learner"]
-    for key in ("world_model", "policy", "world_optimizer", "policy_optimizer", "gym", "train_buffer", "val_buffer"):
+    for key in ("world_model", "policy", "world_optimizer", "policy_optimizer", "collector", "train_buffer",
+                "val_buffer"):
         assert key in learner
     assert "local_norm.mean" in learner["world_model"] and state["iteration"] == 6
 
@@ -105,6 +109,16 @@ def test_unknown_config_key_fails_with_its_name(tmp_path: Path) -> None:
         _train(tmp_path / "x", "--set", "policy.lrr=1")
 
 
+@pytest.mark.parametrize(("value", "message"), [
+    ("-1", r"collect\.steps_per_iteration must be >= 1, warmup_steps >= 0 and processes >= 0"),
+    ("7", r"collect\.processes \(7\) exceeds gym\.num_envs \(6\)"),
+])  # fmt: skip
+def test_a_bad_collector_count_fails_with_its_name(tmp_path: Path, value: str, message: str) -> None:
+    with pytest.raises(SystemExit, match=message):
+        _train(tmp_path / "x", "--set", f"collect.processes={value}")
+    assert not (tmp_path / "x" / "checkpoints").exists()
+
+
 @pytest.mark.parametrize(("key", "value", "message"), [
     ("policy.step_decay", "1.5", r"policy\.step_decay must be in \(0, 1\], got 1\.5"),
     ("policy.average_decay", "1.0", r"policy\.average_decay must be in \[0, 1\), got 1\.0"),
@@ -121,7 +135,7 @@ def test_clip_weights_reach_the_gym_and_a_wrong_clip_name_fails_with_the_file_an
     assert not (tmp_path / "x").exists()  # refused before the run directory is made: a corrected retry can use it
     weights = "collect.clip_weights={walk: 10}"
     _train(tmp_path / "y", "--motions", "walk", "run", "--max-iterations", "1", "--set", weights)
-    gym = read_checkpoint(tmp_path / "y")[1]["learner"]["gym"]
+    gym = read_checkpoint(tmp_path / "y")[1]["learner"]["collector"]["sources"][0]["gym"]
     np.testing.assert_array_equal(gym["clip_weights"], [10.0, 1.0])
 
 
@@ -190,3 +204,106 @@ def test_help_explains_every_option() -> None:
 def test_debug_run_on_cuda(tmp_path: Path) -> None:
     _train(tmp_path / "gpu", "--device", "cuda", "--max-iterations", "3")
     assert (tmp_path / "gpu" / "checkpoints" / "latest.json").is_file()
+
+
+@pytest.fixture(scope="module")
+def collector_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """With a collector process: runs c and d 4 iterations straight, run e 2 iterations, then resumed to 4."""
+    root = tmp_path_factory.mktemp("collector")
+    on = ("--set", "collect.processes=1", "--max-iterations", "4")
+    _train(root / "c", *on)
+    _train(root / "d", *on)
+    _train(root / "e", *on[:2], "--max-iterations", "2")
+    _train(root / "e", "--resume", *on)
+    return {k: root / k for k in "cde"}
+
+
+def _assert_same_tensors(a: object, b: object, where: str = "") -> None:
+    """Every tensor and array of two nested checkpoint states equal, exactly."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), where
+        for k in a:
+            _assert_same_tensors(a[k], b[k], f"{where}.{k}")
+    elif isinstance(a, torch.Tensor):
+        assert torch.equal(a, b), where
+    elif isinstance(a, np.ndarray):
+        np.testing.assert_array_equal(a, b, err_msg=where)
+
+
+@pytest.mark.parametrize("other", ["d", "e"])
+def test_collector_runs_of_one_seed_and_a_resumed_one_give_identical_checkpoints(collector_runs: dict[str, Path],
+                                                                                 other: str) -> None:  # fmt: skip
+    c, o = (read_checkpoint(collector_runs[k])[1] for k in ("c", other))
+    assert c["iteration"] == o["iteration"] == 4 and c["samples"] == o["samples"]
+    _assert_same_tensors(c["learner"], o["learner"])  # networks, optimisers, buffers, gym states, the block in flight
+    assert c["learner"]["collector"]["pending"] is not None
+    mc, mo = (read_metrics(collector_runs[k] / "metrics.jsonl") for k in ("c", other))
+    # Evaluations fall on other iterations after a resume (every 4 iterations from the start of each part).
+    logged = [{k: v for k, v in _line(m, 4, "losses/policy").items() if k.startswith(("losses/", "charts/"))}
+              for m in (mc, mo)]  # fmt: skip
+    assert logged[0] == logged[1] and "charts/buffer_age" in logged[0]
+    assert mc[-1]["eval/mpjpe_g"] == mo[-1]["eval/mpjpe_g"]
+
+
+def test_the_collector_collects_with_the_weights_one_update_behind(
+    runs: dict[str, Path], collector_runs: dict[str, Path]
+) -> None:
+    """Same frames as the in-process loop until the policy's weights first change (update 2: update 1 is W-only)."""
+    a, c = (read_checkpoint(r)[1]["learner"] for r in (
+        runs["a"], collector_runs["c"]))  # fmt: skip
+    rows_a, rows_c = a["train_buffer"]["rows"], c["train_buffer"]["rows"]
+    # Rows 0-33: the warm-up; row 34: iteration 2's block; row 35: iteration 3's, collected with update 2's policy in
+    # process and with update 1's (= the initial one) by the worker.
+    np.testing.assert_array_equal(rows_a["target_rot"][:35], rows_c["target_rot"][:35])
+    np.testing.assert_array_equal(rows_a["sim"][:36], rows_c["sim"][:36])  # S_35 is still reached by equal targets
+    assert not np.array_equal(rows_a["target_rot"][35], rows_c["target_rot"][35])
+    np.testing.assert_array_equal(rows_a["collected_at"][33:37, 0], [0, 1, 2, 3])
+    np.testing.assert_array_equal(rows_c["collected_at"][33:37, 0], [0, 0, 1, 2])
+
+
+def test_replay_ratio_and_buffer_age_by_hand(runs: dict[str, Path], collector_runs: dict[str, Path]) -> None:
+    """Debug preset: 4 training characters, warm-up 34 steps, then 1 step per iteration; W reads 16 x 8 frames per
+    update, the policy 8 x 8 from update 2 on; lines every 2 iterations."""
+    for path in (runs["a"], collector_runs["c"]):
+        first, second = (_line(read_metrics(path / "metrics.jsonl"), i, "charts/replay_ratio_w") for i in (2, 4))
+        assert first["charts/replay_ratio_w"] == pytest.approx(2 * 128 / (34 * 4 + 4))  # 1.829
+        assert first["charts/replay_ratio_policy"] == pytest.approx(64 / (34 * 4 + 4))
+        assert second["charts/replay_ratio_w"] == pytest.approx(2 * 128 / 8)
+        assert second["charts/replay_ratio_policy"] == pytest.approx(2 * 64 / 8)
+    # With the worker every frame read in iterations 1-2 was collected with the initial weights: W's 128 reads in
+    # update 1 are 0 updates old, its 128 and the policy's 64 in update 2 are 1 update old.
+    line = _line(read_metrics(collector_runs["c"] / "metrics.jsonl"), 2, "charts/buffer_age")
+    assert line["charts/buffer_age"] == pytest.approx((0 * 128 + 1 * 192) / 320)
+
+
+def test_the_compile_warm_up_stays_off_the_training_clock_and_budget(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A 5 s warm-up against a 3 s budget: counted, the run would stop after its first iteration."""
+    monkeypatch.setattr(SuperTrackLearner, "warm_up", lambda self: time.sleep(5.0))
+    _train(tmp_path / "w", "--max-minutes", "0.05", "--set", "train.max_iterations=null")
+    records = read_metrics(tmp_path / "w" / "metrics.jsonl")
+    assert records[0]["perf/compile_s"] >= 5.0
+    state = read_checkpoint(tmp_path / "w")[1]
+    assert state["iteration"] >= 2 and 3.0 <= state["train_seconds"] < 5.0
+    assert records[-1]["wall_clock_s"] == state["train_seconds"]
+
+
+def test_a_checkpoint_from_before_the_collector_still_loads(runs: dict[str, Path]) -> None:
+    """benchmarks/world_model_bodies.py reads old runs: a 'gym' entry and frames without collected_at."""
+    state = read_checkpoint(runs["a"])[1]["learner"]
+    old = {k: v for k, v in state.items() if k != "collector"}
+    old["gym"] = state["collector"]["sources"][0]["gym"]
+    for name in ("train_buffer", "val_buffer"):
+        old[name] = {**state[name], "rows": {k: v for k, v in state[name]["rows"].items() if k != "collected_at"}}
+    cfg = load_config(SuperTrackConfig, runs["a"] / "config.yaml")
+    humanoid = Humanoid(cfg.gym.physics)
+    learner = SuperTrackLearner(cfg, humanoid, load_motions(["walk"], humanoid), np.random.default_rng(0))
+    try:
+        learner.load_state_dict(old)
+        reloaded = learner.state_dict()
+    finally:
+        learner.close()
+    _assert_same_tensors(reloaded["collector"]["sources"][0]["gym"], old["gym"])
+    np.testing.assert_array_equal(reloaded["val_buffer"]["rows"]["sim"], state["val_buffer"]["rows"]["sim"])
+    assert not reloaded["train_buffer"]["rows"]["collected_at"].any()
