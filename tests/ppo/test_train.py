@@ -97,7 +97,7 @@ def test_export_refuses_a_policy_of_another_observation(runs: dict[str, Path], t
     config.write_text(config.read_text().replace("kind: parc", "kind: local"))
     humanoid = Humanoid()
     library = load_motions(["walk"], humanoid)
-    policy = load_eval_policy(run, run / "checkpoints" / "latest.pt", humanoid, library)
+    policy = load_eval_policy(run, read_checkpoint(run)[0], humanoid, library)
     gym = TrackingGym(GymConfig(num_envs=2, threads=1), library, humanoid)
     with pytest.raises(ValueError, match="the 'local' observation has 497 features, the policy in .* reads 725"):
         policy(gym.reset())
