@@ -45,6 +45,7 @@ class Report:
         motions: The motion specs every run was evaluated on.
         notes: Warnings shown at the top of the report (mixed motion sets, physics, rendering).
         files: Paths written.
+        oracles: {run label: (open-loop result from each clip's start, {clip: minutes})} of oracle runs (SAMCON).
     """
 
     runs: list[Run]
@@ -53,6 +54,7 @@ class Report:
     motions: list[str]
     notes: list[str] = field(default_factory=list)
     files: dict[str, Path] = field(default_factory=dict)
+    oracles: dict[str, tuple[EvalResult, dict[str, float]]] = field(default_factory=dict)
 
 
 def _union(lists: Sequence[Sequence[str]]) -> list[str]:
@@ -111,6 +113,13 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
         policies.append(policy)
         results.append(evaluate(policy, library, humanoid, protocol))
     report = Report(runs, results, protocol, specs, notes)
+    for run in runs:
+        module = export_module(run.learner)
+        if hasattr(module, "load_oracle"):
+            # A per-clip oracle (SAMCON): its open-loop trajectory, scored from each clip's start.
+            policy, minutes = module.load_oracle(run.path, run.checkpoint, humanoid, library)
+            report.oracles[run.label] = (evaluate(policy, library, humanoid, replace(protocol, starts_per_clip=1)),
+                                         minutes)  # fmt: skip
     report.files["curves"] = figures.learning_curves(runs, out / "learning_curves.png")
     wm = figures.world_model_curves(runs, out / "world_model.png")
     if wm is not None:
@@ -159,6 +168,9 @@ def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]]) -> str:
               f"{p.max_frames} frames per episode, seed {p.seed}. Best value of each row in bold.", ""]  # fmt: skip
     lines += ["## Learning curves (from the training logs)", "", "![learning curves](learning_curves.png)", ""]
     lines += ["## Tracking metrics (re-evaluated)", "", tables.metric_tables(labels, report.results), ""]
+    for label, (oracle, minutes) in report.oracles.items():
+        lines += [f"## Oracle: {label} open loop from each clip's start, next to every run", "",
+                  tables.oracle_table(label, oracle, minutes, labels, report.results), ""]  # fmt: skip
     spread = tables.spread_table(report.runs, report.results)
     if spread:
         lines += ["## Spread over seeds (mean ± std of the overall numbers)", "", spread, ""]
@@ -189,6 +201,9 @@ def _results_json(report: Report) -> dict[str, Any]:
                   "clips": res.clips, "overall": res.overall,
                   "per_clip": {k: v.tolist() for k, v in res.per_clip.items()}}
                  for run, res in zip(report.runs, report.results, strict=True)],
+        "oracles": {label: {"clips": res.clips, "minutes": minutes,
+                            "per_clip": {k: res.per_clip[k].tolist() for k in ("mpjpe_g", "mpjpe_l", "survival")}}
+                    for label, (res, minutes) in report.oracles.items()},
     }  # fmt: skip
 
 

@@ -140,3 +140,18 @@ def spread_table(runs: list[Run], results: list[EvalResult]) -> str | None:
             row.append(f"{fmt(v.mean())} ± {fmt(v.std(ddof=1) if len(v) > 1 else 0.0)} (n={len(v)})")
         rows.append(row)
     return table(["metric", *groups], rows)
+
+
+def oracle_table(label: str, oracle: EvalResult, minutes: dict[str, float], labels: list[str],
+                 results: list[EvalResult]) -> str:  # fmt: skip
+    """Per clip: the oracle's MPJPE-g / -l (from the clip's start), whether it fell, its minutes, and every run's
+    MPJPE-g / -l under the standard protocol."""
+    header = ["clip", f"{label} MPJPE-g / -l (mm)", "fell", "minutes"] + [f"{x} MPJPE-g / -l (mm)" for x in labels]
+    rows = []
+    for c, clip in enumerate(oracle.clips):
+        row = [clip, f"{fmt(oracle.per_clip['mpjpe_g'][c])} / {fmt(oracle.per_clip['mpjpe_l'][c])}",
+               "no" if oracle.per_clip["survival"][c] == 1.0 else "yes",
+               fmt(minutes[clip]) if clip in minutes else "not tracked"]  # fmt: skip
+        row += [f"{fmt(r.per_clip['mpjpe_g'][c])} / {fmt(r.per_clip['mpjpe_l'][c])}" for r in results]
+        rows.append(row)
+    return table(header, rows)
