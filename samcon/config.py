@@ -7,6 +7,7 @@ motions, evaluation protocol and physics the same way (:mod:`report.runs`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 from common.evaluate import EvalConfig
 from common.humanoid import PhysicsConfig
@@ -120,12 +121,17 @@ class FeedbackConfig:
     Attributes:
         samples: Lowest-cost candidates of each segment regressed on.
         ridge: Ridge term relative to the mean feature variance (see :func:`samcon.feedback.fit_linear`).
+        anchor: ``mean``: b = mean(a) - M mean(s) (the lectures' regression through the samples' means); ``path``:
+            b = a* - M s* through the chosen trajectory's offset a* and start features s*, so that on its own states
+            the policy replays the open-loop trajectory. The elite of one search are mostly noise around many
+            different offsets, so their mean offset need not track at all (walk, measured: see the README).
         refine_iterations: Re-runs of SAMCON sampling around the current policies, each followed by a refit.
         refine_sigma: Offset deviation (rad) of those re-runs.
     """
 
     samples: int = 60
     ridge: float = 0.1
+    anchor: Literal["mean", "path"] = "path"
     refine_iterations: int = 0
     refine_sigma: float = 0.05
 

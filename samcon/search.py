@@ -56,6 +56,7 @@ class Trajectory:
         features: Per segment, the feedback features of the regression samples' start states, [(n_k, D)].
         actions: Per segment, their offsets, [(n_k, nu)].
         kept_cost: Per segment, the costs of the samples kept, lowest first, [(keep,)].
+        path_features: Feedback features of the chosen path at every segment's start. Shape: (S, D).
     """
 
     clip: str
@@ -71,6 +72,7 @@ class Trajectory:
     features: list[np.ndarray]
     actions: list[np.ndarray]
     kept_cost: list[np.ndarray]
+    path_features: np.ndarray
 
     @property
     def frames(self) -> int:
@@ -154,7 +156,8 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
             good = order[: regression_samples][np.isfinite(c[order[:regression_samples]])]
             features.append(kept_feat[parent[good]])
             actions.append(offset[good])
-            history.append((parent[best], offset[best], c[best], end[best], {k_: v[best] for k_, v in terms.items()}))
+            history.append((parent[best], offset[best], c[best], end[best], {k_: v[best] for k_, v in terms.items()},
+                            kept_feat[parent[best]]))  # fmt: skip
             kept = end[best]
             if progress is not None:
                 progress(k, len(bounds) - 1, float(c[best[0]]), time.perf_counter() - t0)
@@ -215,6 +218,7 @@ def _trace_back(name: str, start: np.ndarray, history: list, ref: CharacterState
         segment_terms={key: np.array([history[k][4][key][chosen[k]] for k in range(nseg)]) for key in history[0][4]},
         end_states=np.stack([history[k][3][chosen[k]] for k in range(nseg)]), samples=samples, seconds=seconds,
         features=features, actions=actions, kept_cost=[h[2] for h in history],
+        path_features=np.stack([history[k][5][chosen[k]] for k in range(nseg)]),
     )  # fmt: skip
 
 

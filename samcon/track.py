@@ -33,7 +33,7 @@ from common.motion_dataset import load_motions
 from common.motion_library import MotionLibrary
 from common.run import RunDir, RunDirError
 from samcon import store
-from samcon.config import SamconConfig
+from samcon.config import FeedbackConfig, SamconConfig
 from samcon.cost import COST_TERMS
 from samcon.feedback import ClipPlan, FeedbackPolicy, fit_linear, open_loop_policy
 from samcon.search import Trajectory, horizon, samcon
@@ -41,10 +41,22 @@ from samcon.search import Trajectory, horizon, samcon
 LEARNER = "samcon"
 
 
-def fit_policies(traj: Trajectory, ridge: float) -> tuple[np.ndarray, np.ndarray]:
+def fit_policies(traj: Trajectory, config: FeedbackConfig) -> tuple[np.ndarray, np.ndarray]:
     """One linear map per segment from its regression samples: gain (S, nu, D), bias (S, nu)."""
-    fits = [fit_linear(s, a, ridge) for s, a in zip(traj.features, traj.actions, strict=True)]
+    return anchored(traj, config, *fit_samples(traj, config))
+
+
+def fit_samples(traj: Trajectory, config: FeedbackConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The lectures' regression on every segment's samples: gain (S, nu, D), bias (S, nu)."""
+    fits = [fit_linear(s, a, config.ridge) for s, a in zip(traj.features, traj.actions, strict=True)]
     return np.stack([m for m, _ in fits]), np.stack([b for _, b in fits])
+
+
+def anchored(traj: Trajectory, config: FeedbackConfig, gain: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, ...]:
+    """With ``feedback.anchor: path``, the bias that puts ``traj``'s offsets at its own start features."""
+    if config.anchor == "path":
+        bias = traj.offsets - np.einsum("kad,kd->ka", gain, traj.path_features)
+    return gain, bias
 
 
 def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, clip: int, rng: np.random.Generator,
@@ -58,7 +70,7 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
     common = dict(threads=cfg.train.threads, max_speed=cfg.gym.max_speed, regression_samples=cfg.feedback.samples,
                   rsi_lift=cfg.train.eval.rsi_lift, progress=progress)  # fmt: skip
     traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng, **common)
-    gain, bias = fit_policies(traj, cfg.feedback.ridge)
+    gain, bias = fit_policies(traj, cfg.feedback)
     around = replace(cfg.search, sigma_init=cfg.feedback.refine_sigma, mean_carry=0.0)
     for _ in range(cfg.feedback.refine_iterations):
         g, b = gain, bias
@@ -67,10 +79,11 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
             return s @ g[k].T + b[k]
 
         again = samcon(humanoid, library, clip, frames, around, cfg.cost, rng, guide=guide, **common)
-        gain, bias = fit_policies(again, cfg.feedback.ridge)
-        # The open-loop trajectory stays the better of the two searches; the samples and time add up.
+        # The open-loop trajectory stays the better of the two searches (the policy is anchored on it); the samples
+        # and time add up.
         best = again if again.segment_cost.sum() < traj.segment_cost.sum() else traj
         traj = replace(best, samples=traj.samples + again.samples, seconds=traj.seconds + again.seconds)
+        gain, bias = anchored(traj, cfg.feedback, *fit_samples(again, cfg.feedback))
     return traj, gain, bias
 
 

@@ -5,12 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from common.evaluate import EvalConfig, evaluate
 from common.humanoid import Humanoid
 from common.kinematics import ForwardKinematics
 from common.motion_dataset import load_motions
-from samcon.config import CostConfig, SearchConfig
+from samcon.config import CostConfig, FeedbackConfig, SearchConfig
 from samcon.cost import feedback_features, tracking_cost
+from samcon.feedback import ClipPlan, FeedbackPolicy, open_loop_policy
 from samcon.search import reference_frames, replay, samcon
+from samcon.track import fit_policies
 
 
 @pytest.fixture(scope="module")
@@ -71,3 +74,25 @@ def test_two_segments_trace_back_and_replay_bit_exactly(walk) -> None:
     ref = reference_frames(library, 0, 7)
     np.testing.assert_allclose(traj.targets[3:6] - ref.qpos[4:7, humanoid.hinge_qpos], traj.offsets[[1, 1, 1]],
                                atol=1e-12)  # fmt: skip
+
+
+def test_path_anchored_feedback_replays_the_open_loop_trajectory(walk) -> None:
+    humanoid, library = walk
+    search = SearchConfig(segment_frames=3, samples=8, iterations=2, keep=3, elite=4)
+    traj = samcon(humanoid, library, 0, 9, search, CostConfig(), np.random.default_rng(1), regression_samples=6)
+    gain, bias = fit_policies(traj, FeedbackConfig(samples=6, anchor="path"))
+    assert np.abs(gain).max() > 0  # real feedback from the second segment on, not a disguised open loop
+    plans = {"walk": ClipPlan(traj.targets, traj.bounds, gain, bias)}
+    protocol = EvalConfig(starts_per_clip=1, max_frames=9, threads=1)
+    open_loop = evaluate(open_loop_policy(plans, library, humanoid), library, humanoid, protocol)
+    feedback = evaluate(FeedbackPolicy(plans, library, humanoid), library, humanoid, protocol)
+    # On the trajectory's own states s*, M s + b = a*: the same targets up to rounding, the same error.
+    assert feedback.overall["mpjpe_g"] == pytest.approx(open_loop.overall["mpjpe_g"], rel=1e-6)
+    # The open-loop policy under the evaluator is the search's own trajectory, bit for bit, hence its error.
+    states = replay(humanoid, traj.start_state, traj.targets)
+    fk = ForwardKinematics(humanoid)
+    sim = fk(states[:, 1 : 1 + humanoid.nq], states[:, 1 + humanoid.nq : 1 + humanoid.nq + humanoid.nv])
+    fk.close()
+    ref = reference_frames(library, 0, 9)
+    expected = np.mean(1000 * np.linalg.norm(sim.body_pos - ref.body_pos[1:], axis=-1).mean(axis=-1))
+    assert open_loop.overall["mpjpe_g"] == pytest.approx(expected, rel=1e-12)
