@@ -69,11 +69,11 @@ class SearchConfig:
     """
 
     segment_frames: int = 6
-    samples: int = 200
-    iterations: int = 3
-    keep: int = 20
+    samples: int = 300
+    iterations: int = 2
+    keep: int = 40
     elite: int = 20
-    sigma_init: float = 0.1
+    sigma_init: float = 0.15
     sigma_min: float = 0.01
     sigma_rate: float = 0.5
     mean_carry: float = 0.5
