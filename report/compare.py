@@ -168,9 +168,9 @@ def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]]) -> str:
               f"{p.max_frames} frames per episode, seed {p.seed}. Best value of each row in bold.", ""]  # fmt: skip
     lines += ["## Learning curves (from the training logs)", "", "![learning curves](learning_curves.png)", ""]
     lines += ["## Tracking metrics (re-evaluated)", "", tables.metric_tables(labels, report.results), ""]
-    for label, (oracle, minutes) in report.oracles.items():
-        lines += [f"## Oracle: {label} open loop from each clip's start, next to every run", "",
-                  tables.oracle_table(label, oracle, minutes, labels, report.results), ""]  # fmt: skip
+    if report.oracles:
+        lines += ["## Oracle: SAMCON's open-loop trajectory from each clip's start, next to every run", "",
+                  tables.oracle_table(report.oracles, labels, report.results), ""]  # fmt: skip
     spread = tables.spread_table(report.runs, report.results)
     if spread:
         lines += ["## Spread over seeds (mean ± std of the overall numbers)", "", spread, ""]

@@ -142,16 +142,22 @@ def spread_table(runs: list[Run], results: list[EvalResult]) -> str | None:
     return table(["metric", *groups], rows)
 
 
-def oracle_table(label: str, oracle: EvalResult, minutes: dict[str, float], labels: list[str],
+def oracle_table(oracles: dict[str, tuple[EvalResult, dict[str, float]]], labels: list[str],
                  results: list[EvalResult]) -> str:  # fmt: skip
-    """Per clip: the oracle's MPJPE-g / -l (from the clip's start), whether it fell, its minutes, and every run's
-    MPJPE-g / -l under the standard protocol."""
-    header = ["clip", f"{label} MPJPE-g / -l (mm)", "fell", "minutes"] + [f"{x} MPJPE-g / -l (mm)" for x in labels]
+    """Per clip: the oracle run that tracked it (the lowest MPJPE-g if several did), its open-loop MPJPE-g / -l from
+    the clip's start, whether it fell and its minutes, then every run's MPJPE-g / -l under the standard protocol."""
+    header = ["clip", "oracle run", "open loop MPJPE-g / -l (mm)", "fell", "minutes"]
+    header += [f"{x} MPJPE-g / -l (mm)" for x in labels]
     rows = []
-    for c, clip in enumerate(oracle.clips):
-        row = [clip, f"{fmt(oracle.per_clip['mpjpe_g'][c])} / {fmt(oracle.per_clip['mpjpe_l'][c])}",
-               "no" if oracle.per_clip["survival"][c] == 1.0 else "yes",
-               fmt(minutes[clip]) if clip in minutes else "not tracked"]  # fmt: skip
+    for c, clip in enumerate(results[0].clips):
+        tracked = [(res.per_clip["mpjpe_g"][c], label, res, minutes[clip])
+                   for label, (res, minutes) in oracles.items() if clip in minutes]  # fmt: skip
+        if tracked:
+            _, label, res, minutes = min(tracked, key=lambda t: t[0])
+            row = [clip, label, f"{fmt(res.per_clip['mpjpe_g'][c])} / {fmt(res.per_clip['mpjpe_l'][c])}",
+                   "no" if res.per_clip["survival"][c] == 1.0 else "yes", fmt(minutes)]  # fmt: skip
+        else:
+            row = [clip, "not tracked", "", "", ""]
         row += [f"{fmt(r.per_clip['mpjpe_g'][c])} / {fmt(r.per_clip['mpjpe_l'][c])}" for r in results]
         rows.append(row)
     return table(header, rows)

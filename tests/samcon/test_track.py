@@ -43,7 +43,9 @@ def test_compare_trackers_reads_a_samcon_run(run: Path, tmp_path: Path) -> None:
     assert minutes["walk"] == pytest.approx(results["minutes"], rel=1e-9)
     assert report.results[0].per_clip["mpjpe_g"][0] == pytest.approx(results["feedback"]["mpjpe_g"], rel=1e-12)
     md = (tmp_path / "report" / "report.md").read_text()
-    assert "## Oracle: samcon:run open loop" in md
+    oracle_rows = md.split("## Oracle", 1)[1].split("\n\n")[1].splitlines()[2:]
+    cells = [c.strip() for c in oracle_rows[0].strip("|").split("|")]
+    assert cells[:2] == ["walk", f"samcon:{run.name}"] and cells[3] == "no"
 
 
 @pytest.mark.parametrize(
