@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.evaluate import Policy
 from common.gym import StepResult
 from common.humanoid import Humanoid
 from common.motion_library import MotionLibrary
@@ -64,10 +65,9 @@ def _frame_index(result: StepResult, dt: float) -> np.ndarray:
     return np.rint(result.time / dt).astype(np.int64)
 
 
-def open_loop_policy(plans: dict[str, ClipPlan], library: MotionLibrary, humanoid: Humanoid):
+def open_loop_policy(plans: dict[str, ClipPlan], library: MotionLibrary, humanoid: Humanoid) -> Policy:
     """The open-loop trajectories as an evaluator policy, meant for episodes that start at t = 0: the stored target
     of the current frame; past a trajectory's end, or for a clip it lacks, the reference's next-frame angles."""
-    missing = [name for name in library.names if name not in plans]
 
     def policy(result: StepResult) -> np.ndarray:
         out = result.ref_next.qpos[:, humanoid.hinge_qpos].copy()
@@ -78,7 +78,6 @@ def open_loop_policy(plans: dict[str, ClipPlan], library: MotionLibrary, humanoi
                 out[i] = plan.targets[f]
         return out
 
-    policy.missing = missing  # type: ignore[attr-defined]
     return policy
 
 
@@ -102,7 +101,6 @@ class FeedbackPolicy:
 
     def __init__(self, plans: dict[str, ClipPlan], library: MotionLibrary, humanoid: Humanoid) -> None:
         self.plans, self.library, self.humanoid = plans, library, humanoid
-        self.missing = [name for name in library.names if name not in plans]
         self._episode: np.ndarray | None = None
         self._segment: np.ndarray | None = None
         self._held: np.ndarray | None = None

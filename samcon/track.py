@@ -134,8 +134,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         humanoid = Humanoid(cfg.gym.physics)
         library = load_motions(list(cfg.train.motions), humanoid)
         run_dir = RunDir(args.out or f"runs/{LEARNER}-{datetime.now().strftime('%Y%m%d-%H%M%S')}", resume=False)
-    except (ConfigError, RunDirError, MotionFormatError, FileNotFoundError, KeyError) as e:
-        sys.exit(f"error: {str(e).strip(chr(34) + chr(39))}")
+    except (ConfigError, RunDirError, MotionFormatError, FileNotFoundError) as e:
+        sys.exit(f"error: {e}")
     run_dir.save_config(cfg)
     info = run_dir.write_run_info({"learner": LEARNER, "seed": cfg.train.seed, "motions": list(library.names)})
     rng = np.random.default_rng(cfg.train.seed)
