@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from report.compare import build_report
+from report.runs import ReportError, load_run
 from samcon.track import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -62,3 +63,12 @@ def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_pat
     text = str(exit_info.value.code)
     assert text.startswith("error: ") and message in text and "\n" not in text
     assert not (tmp_path / "run").exists()
+
+
+def test_a_run_without_its_policy_file_is_refused(run: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    for name in ("config.yaml", "run_info.json"):
+        (copy / name).write_bytes((run / name).read_bytes())
+    with pytest.raises(ReportError, match="unfinished run: no samcon.h5"):
+        load_run(copy)
