@@ -125,6 +125,9 @@ class FeedbackConfig:
             b = a* - M s* through the chosen trajectory's offset a* and start features s*, so that on its own states
             the policy replays the open-loop trajectory. The elite of one search are mostly noise around many
             different offsets, so their mean offset need not track at all (walk, measured: see the README).
+        fresh_share: Share of the candidates started on the reference state at their segment's start, as an
+            evaluation episode starts, so that the regression also sees the states the policy is started from (they
+            never become kept states). 0: the plain search.
         refine_iterations: Re-runs of SAMCON sampling around the current policies, each followed by a refit.
         refine_sigma: Offset deviation (rad) of those re-runs.
     """
@@ -132,12 +135,15 @@ class FeedbackConfig:
     samples: int = 60
     ridge: float = 0.1
     anchor: Literal["mean", "path"] = "path"
+    fresh_share: float = 0.0
     refine_iterations: int = 0
     refine_sigma: float = 0.05
 
     def __post_init__(self) -> None:
         if self.samples < 2 or self.ridge < 0 or self.refine_iterations < 0 or self.refine_sigma <= 0:
             raise ValueError("feedback: need samples >= 2, ridge >= 0, refine_iterations >= 0, refine_sigma > 0")
+        if not 0 <= self.fresh_share <= 0.5:
+            raise ValueError(f"feedback.fresh_share must lie in [0, 0.5], got {self.fresh_share}")
 
 
 @dataclass(frozen=True)

@@ -109,13 +109,16 @@ def _log_weights(n: int) -> np.ndarray:
 
 def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, search: SearchConfig,
            cost: CostConfig, rng: np.random.Generator, *, threads: int = 1, max_speed: float = 1000.0,
-           guide: Guide | None = None, regression_samples: int = 60, rsi_lift: bool = False,
-           progress: Progress | None = None) -> Trajectory:  # fmt: skip
+           guide: Guide | None = None, regression_samples: int = 60, fresh_share: float = 0.0,
+           rsi_lift: bool = False, progress: Progress | None = None) -> Trajectory:  # fmt: skip
     """Tracks the first ``frames`` control steps of clip ``clip`` from its start (see the module docstring).
 
     Args:
         guide: Base offsets from the feedback features (None: 0).
         regression_samples: Lowest-cost candidates per segment kept for the feedback regression.
+        fresh_share: Share of each round's candidates started on the reference state at the segment's start instead
+            of a kept state (as an evaluation episode starts): they enter the regression only, never the kept states
+            (the trajectory must be continuous) nor the distribution update.
         rsi_lift: The gym's start lift (must match the evaluator's).
     """
     t0 = time.perf_counter()
@@ -128,6 +131,8 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     kept = start[None]
     nq, nv = humanoid.nq, humanoid.nv
     mean = np.zeros(nu)
+    fresh = np.arange(n) >= n - int(round(fresh_share * n))
+    fresh_state = np.zeros_like(kept)
     history: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]] = []
     features, actions = [], []
     try:
@@ -136,25 +141,30 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
             kept_fk = fk(kept[:, 1 : 1 + nq].copy(), kept[:, 1 + nq : 1 + nq + nv].copy())
             kept_feat = feedback_features(humanoid, kept_fk, ref[np.full(len(kept), f0)])
             mean, sigma = search.mean_carry * mean, np.full(nu, search.sigma_init)
+            fresh_state[:, 1 : 1 + nq], fresh_state[:, 1 + nq : 1 + nq + nv] = ref.qpos[f0], ref.qvel[f0]
+            fresh_feat = feedback_features(humanoid, fk(ref.qpos[f0 : f0 + 1], ref.qvel[f0 : f0 + 1]), ref[[f0]])
             rounds = []
             for _ in range(search.iterations):
                 parent = np.arange(n) % len(kept)
-                base = guide(k, kept_feat[parent]) if guide is not None else np.zeros((n, nu))
+                starts, feat = kept[parent], kept_feat[parent]
+                starts[fresh], feat[fresh] = fresh_state, fresh_feat
+                base = guide(k, feat) if guide is not None else np.zeros((n, nu))
                 noise = mean + sigma * rng.standard_normal((n, nu))
                 offset = base + noise
-                c, terms, end = _simulate(sim, fk, humanoid, cost, kept[parent], offset, ref, f0, f1, hinge)
-                rounds.append((parent, offset, c, end, terms))
-                elite = np.argsort(c, kind="stable")[: search.elite]
+                c, terms, end = _simulate(sim, fk, humanoid, cost, starts, offset, ref, f0, f1, hinge)
+                rounds.append((parent, offset, c, end, terms, feat, fresh))
+                elite = np.flatnonzero(~fresh)[np.argsort(c[~fresh], kind="stable")[: search.elite]]
                 w = _log_weights(len(elite))
                 mean = w @ noise[elite]
                 spread = np.sqrt(w @ (noise[elite] - mean) ** 2)
                 sigma = np.maximum(search.sigma_min, (1 - search.sigma_rate) * sigma + search.sigma_rate * spread)
-            parent, offset, c, end = (np.concatenate([r[i] for r in rounds]) for i in range(4))
+            parent, offset, c, end, _, feat, was_fresh = (np.concatenate([r[i] for r in rounds]) if i != 4 else None
+                                                          for i in range(7))  # fmt: skip
             terms = {key: np.concatenate([r[4][key] for r in rounds]) for key in rounds[0][4]}
             order = np.argsort(c, kind="stable")
-            best = order[: search.keep]
+            best = order[~was_fresh[order]][: search.keep]
             good = order[: regression_samples][np.isfinite(c[order[:regression_samples]])]
-            features.append(kept_feat[parent[good]])
+            features.append(feat[good])
             actions.append(offset[good])
             history.append((parent[best], offset[best], c[best], end[best], {k_: v[best] for k_, v in terms.items()},
                             kept_feat[parent[best]]))  # fmt: skip

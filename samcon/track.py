@@ -67,8 +67,9 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
     def progress(k: int, segments: int, best: float, seconds: float) -> None:
         print(f"{name} segment {k + 1}/{segments} cost {best:.4g} {seconds:.0f} s", file=log, flush=True)
 
-    common = dict(threads=cfg.train.threads, max_speed=cfg.gym.max_speed, regression_samples=cfg.feedback.samples,
-                  rsi_lift=cfg.train.eval.rsi_lift, progress=progress)  # fmt: skip
+    fb = cfg.feedback
+    common = dict(threads=cfg.train.threads, max_speed=cfg.gym.max_speed, regression_samples=fb.samples,
+                  fresh_share=fb.fresh_share, rsi_lift=cfg.train.eval.rsi_lift, progress=progress)  # fmt: skip
     traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng, **common)
     gain, bias = fit_policies(traj, cfg.feedback)
     around = replace(cfg.search, sigma_init=cfg.feedback.refine_sigma, mean_carry=0.0)

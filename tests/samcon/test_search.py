@@ -96,3 +96,16 @@ def test_path_anchored_feedback_replays_the_open_loop_trajectory(walk) -> None:
     ref = reference_frames(library, 0, 9)
     expected = np.mean(1000 * np.linalg.norm(sim.body_pos - ref.body_pos[1:], axis=-1).mean(axis=-1))
     assert open_loop.overall["mpjpe_g"] == pytest.approx(expected, rel=1e-12)
+
+
+def test_fresh_candidates_feed_the_regression_but_are_never_kept(walk) -> None:
+    humanoid, library = walk
+    search = SearchConfig(segment_frames=3, samples=8, iterations=1, keep=3, elite=2)
+    traj = samcon(humanoid, library, 0, 6, search, CostConfig(), np.random.default_rng(2), regression_samples=8,
+                  fresh_share=0.5)  # fmt: skip
+    # Continuity: the chosen path is simulated from the start state only, never from a reference state.
+    states = replay(humanoid, traj.start_state, traj.targets)
+    np.testing.assert_array_equal(states[traj.bounds[1:] - 1], traj.end_states)
+    # In the second segment, half the regression rows start on the reference (features ~0), half on kept states.
+    fresh = np.abs(traj.features[1]).max(axis=1) < 1e-9
+    assert fresh.sum() == 4 and (~fresh).sum() == 4
