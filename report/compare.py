@@ -50,6 +50,7 @@ class Report:
         motions: The motion specs every run was evaluated on.
         notes: Warnings shown at the top of the report (mixed motion sets, physics, rendering).
         files: Paths written.
+        oracles: {run label: (open-loop result from each clip's start, {clip: minutes})} of oracle runs (SAMCON).
     """
 
     runs: list[Run]
@@ -59,6 +60,7 @@ class Report:
     pushed: list[EvalResult] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     files: dict[str, Path] = field(default_factory=dict)
+    oracles: dict[str, tuple[EvalResult, dict[str, float]]] = field(default_factory=dict)
 
 
 def _union(lists: Sequence[Sequence[str]]) -> list[str]:
@@ -120,6 +122,13 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
         if pushes:
             pushed.append(evaluate(policy, library, humanoid, replace(protocol, pushes=PUSHES)))
     report = Report(runs, results, protocol, specs, pushed, notes)
+    for run in runs:
+        module = export_module(run.learner)
+        if hasattr(module, "load_oracle"):
+            # A per-clip oracle (SAMCON): its open-loop trajectory, scored from each clip's start.
+            policy, minutes = module.load_oracle(run.path, run.checkpoint, humanoid, library)
+            report.oracles[run.label] = (evaluate(policy, library, humanoid, replace(protocol, starts_per_clip=1)),
+                                         minutes)  # fmt: skip
     report.files["curves"] = figures.learning_curves(runs, out / "learning_curves.png")
     wm = figures.world_model_curves(runs, out / "world_model.png")
     if wm is not None:
@@ -176,6 +185,9 @@ def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]]) -> str:
                   f"on the pelvis, horizontal, in a seeded random direction (seed {q.seed}), at frame "
                   f"{q.first_frame} of every episode and every {q.interval} frames after.", "",
                   tables.robustness_table(labels, report.pushed), ""]  # fmt: skip
+    if report.oracles:
+        lines += ["## Oracle: SAMCON's open-loop trajectory from each clip's start, next to every run", "",
+                  tables.oracle_table(report.oracles, labels, report.results), ""]  # fmt: skip
     spread = tables.spread_table(report.runs, report.results)
     if spread:
         lines += ["## Spread over seeds (mean ± std of the overall numbers)", "", spread, ""]
@@ -218,6 +230,9 @@ def _results_json(report: Report) -> dict[str, Any]:
                                  "per_clip": {k: v.tolist() for k, v in report.pushed[i].per_clip.items()}}}
                      if report.pushed else {})}
                  for i, (run, res) in enumerate(zip(report.runs, report.results, strict=True))],
+        "oracles": {label: {"clips": res.clips, "minutes": minutes,
+                            "per_clip": {k: res.per_clip[k].tolist() for k in ("mpjpe_g", "mpjpe_l", "survival")}}
+                    for label, (res, minutes) in report.oracles.items()},
     }  # fmt: skip
 
 

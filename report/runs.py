@@ -135,6 +135,14 @@ def load_run(path: str | Path, iteration: int | None = None) -> Run:
     learner = info.get("learner")
     if not learner:
         raise ReportError(f"{path}: run_info.json names no learner")
+    if info.get("policy_file"):
+        # A run without training checkpoints (SAMCON): its learner's export module reads this one file.
+        ckpt = path / str(info["policy_file"])
+        if not ckpt.is_file():
+            raise ReportError(f"{path}: unfinished run: no {info['policy_file']} (run_info.json names it)")
+        return Run(path=path, label=f"{learner}:{path.name}", learner=learner, config=dict(config), info=info,
+                   metrics=metrics, checkpoint=ckpt, iteration=0, samples=int(info.get("samples", 0)),
+                   train_seconds=float(info.get("train_seconds", 0.0)))  # fmt: skip
     ckpt, state = _checkpoint(path, iteration)
     meta = state.get("meta")
     meta_learner = meta.get("learner") if isinstance(meta, dict) else None

@@ -150,3 +150,24 @@ def spread_table(runs: list[Run], results: list[EvalResult]) -> str | None:
             row.append(f"{fmt(v.mean())} ± {fmt(v.std(ddof=1) if len(v) > 1 else 0.0)} (n={len(v)})")
         rows.append(row)
     return table(["metric", *groups], rows)
+
+
+def oracle_table(oracles: dict[str, tuple[EvalResult, dict[str, float]]], labels: list[str],
+                 results: list[EvalResult]) -> str:  # fmt: skip
+    """Per clip: the oracle run that tracked it (the lowest MPJPE-g if several did), its open-loop MPJPE-g / -l from
+    the clip's start, whether it fell and its minutes, then every run's MPJPE-g / -l under the standard protocol."""
+    header = ["clip", "oracle run", "open loop MPJPE-g / -l (mm)", "fell", "minutes"]
+    header += [f"{x} MPJPE-g / -l (mm)" for x in labels]
+    rows = []
+    for c, clip in enumerate(results[0].clips):
+        tracked = [(res.per_clip["mpjpe_g"][c], label, res, minutes[clip])
+                   for label, (res, minutes) in oracles.items() if clip in minutes]  # fmt: skip
+        if tracked:
+            _, label, res, minutes = min(tracked, key=lambda t: t[0])
+            row = [clip, label, f"{fmt(res.per_clip['mpjpe_g'][c])} / {fmt(res.per_clip['mpjpe_l'][c])}",
+                   "no" if res.per_clip["survival"][c] == 1.0 else "yes", fmt(minutes)]  # fmt: skip
+        else:
+            row = [clip, "not tracked", "", "", ""]
+        row += [f"{fmt(r.per_clip['mpjpe_g'][c])} / {fmt(r.per_clip['mpjpe_l'][c])}" for r in results]
+        rows.append(row)
+    return table(header, rows)

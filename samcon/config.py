@@ -1,0 +1,157 @@
+"""The config of ``track-samcon``: frozen dataclasses loaded with :func:`common.config.load_config`.
+
+The section names ``train`` and ``gym`` follow the learners' configs so that the report reads a SAMCON run's
+motions, evaluation protocol and physics the same way (:mod:`report.runs`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from common.evaluate import EvalConfig
+from common.humanoid import PhysicsConfig
+
+
+@dataclass(frozen=True)
+class TrackConfig:
+    """What to track and how the result is judged.
+
+    Attributes:
+        motions: Motion specs (see :func:`common.motion_dataset.resolve_clips`).
+        seed: Seed of the sampling.
+        max_frames: Control steps tracked from each clip's start: loop clips this many, one-shot clips to their last
+            frame if sooner (the shared evaluator's horizon).
+        threads: MuJoCo rollout threads.
+        eval: The protocol the linear feedback policy is judged under (the open-loop trajectory is judged from the
+            clip's start only, with one episode per clip).
+    """
+
+    motions: list[str] = field(default_factory=lambda: ["walk"])
+    seed: int = 0
+    max_frames: int = 512
+    threads: int = 1
+    eval: EvalConfig = field(default_factory=EvalConfig)
+
+    def __post_init__(self) -> None:
+        if self.max_frames < 1:
+            raise ValueError(f"train.max_frames must be >= 1, got {self.max_frames}")
+
+
+@dataclass(frozen=True)
+class SimSection:
+    """The simulation (named ``gym`` like the learners' section).
+
+    Attributes:
+        physics: Rates and solver settings; the same as the learners' for the comparison to mean anything.
+        max_speed: A generalised velocity above this (m/s, rad/s) counts as a blown-up simulation.
+    """
+
+    physics: PhysicsConfig = field(default_factory=PhysicsConfig)
+    max_speed: float = 1000.0
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """The sampling search (SAMCON with the 2015 per-segment distribution update).
+
+    Attributes:
+        segment_frames: Control steps per segment (6 at 60 Hz = 0.1 s, Liu et al. 2010).
+        samples: Candidates simulated per iteration of a segment.
+        iterations: Sampling rounds per segment; after each, the offset distribution moves to its elite.
+        keep: States kept at the end of a segment (the starts of the next one).
+        elite: Best candidates of a round that set the next round's distribution.
+        sigma_init: Initial standard deviation of the PD-target offsets (rad).
+        sigma_min: Floor of that deviation (rad), so that a segment never stops exploring.
+        sigma_rate: Learning rate of the deviation towards the elite's (CMA's c_sigma role); 1 copies it.
+        mean_carry: Share of the previous segment's final mean that starts the next one (offsets that hold a
+            joint against gravity persist from segment to segment).
+    """
+
+    segment_frames: int = 6
+    samples: int = 300
+    iterations: int = 2
+    keep: int = 40
+    elite: int = 20
+    sigma_init: float = 0.15
+    sigma_min: float = 0.01
+    sigma_rate: float = 0.5
+    mean_carry: float = 0.5
+
+    def __post_init__(self) -> None:
+        if min(self.segment_frames, self.samples, self.iterations, self.keep, self.elite) < 1:
+            raise ValueError("search: segment_frames, samples, iterations, keep and elite must be >= 1")
+        if self.keep > self.samples * self.iterations or self.elite > self.samples:
+            raise ValueError("search: keep must be <= samples * iterations and elite <= samples")
+        if not (self.sigma_init > 0 and self.sigma_min >= 0 and 0 < self.sigma_rate <= 1 and 0 <= self.mean_carry <= 1):
+            raise ValueError("search: need sigma_init > 0, sigma_min >= 0, 0 < sigma_rate <= 1, 0 <= mean_carry <= 1")
+
+
+@dataclass(frozen=True)
+class CostConfig:
+    """Weights of the tracking cost, averaged over a segment's frames (see :func:`samcon.cost.tracking_cost`).
+
+    Each weight is 1 / sigma^2 for an error sigma judged tolerable, so that every term is about 1 at that error.
+
+    Attributes:
+        pose: Mean squared hinge angle error (rad^2).
+        root_pos: Squared root position error (m^2): MPJPE-g is mostly root drift, open loop has no other check.
+        root_rot: Squared root orientation angle (rad^2).
+        end_effector: Mean squared root-relative hand and foot position error (m^2).
+        balance: Squared horizontal error of the centre of mass relative to the feet (m^2): Liu et al.'s balance.
+        root_vel: Squared root velocity error ((m/s)^2): the state the next segment starts from.
+        fall_head_error: Head height error (m) that counts as a fall (the evaluator's rule).
+        fall_penalty: Cost added per frame fallen, large enough that a fallen sample is never kept while one stands.
+    """
+
+    pose: float = 10.0
+    root_pos: float = 100.0
+    root_rot: float = 25.0
+    end_effector: float = 100.0
+    balance: float = 100.0
+    root_vel: float = 1.0
+    fall_head_error: float = 0.25
+    fall_penalty: float = 1000.0
+
+
+@dataclass(frozen=True)
+class FeedbackConfig:
+    """The per-segment linear feedback policies (Liu et al. 2016).
+
+    Attributes:
+        samples: Lowest-cost candidates of each segment regressed on.
+        ridge: Ridge term relative to the mean feature variance (see :func:`samcon.feedback.fit_linear`).
+        anchor: ``mean``: b = mean(a) - M mean(s) (the lectures' regression through the samples' means); ``path``:
+            b = a* - M s* through the chosen trajectory's offset a* and start features s*, so that on its own states
+            the policy replays the open-loop trajectory. The elite of one search are mostly noise around many
+            different offsets, so their mean offset need not track at all (walk, measured: see the README).
+        fresh_share: Share of the candidates started on the reference state at their segment's start, as an
+            evaluation episode starts, so that the regression also sees the states the policy is started from (they
+            never become kept states). 0: the plain search.
+        refine_iterations: Re-runs of SAMCON sampling around the current policies, each followed by a refit.
+        refine_sigma: Offset deviation (rad) of those re-runs.
+    """
+
+    samples: int = 60
+    ridge: float = 0.1
+    anchor: Literal["mean", "path"] = "path"
+    fresh_share: float = 0.0
+    refine_iterations: int = 0
+    refine_sigma: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.samples < 2 or self.ridge < 0 or self.refine_iterations < 0 or self.refine_sigma <= 0:
+            raise ValueError("feedback: need samples >= 2, ridge >= 0, refine_iterations >= 0, refine_sigma > 0")
+        if not 0 <= self.fresh_share <= 0.5:
+            raise ValueError(f"feedback.fresh_share must lie in [0, 0.5], got {self.fresh_share}")
+
+
+@dataclass(frozen=True)
+class SamconConfig:
+    """Everything ``track-samcon`` reads."""
+
+    train: TrackConfig = field(default_factory=TrackConfig)
+    gym: SimSection = field(default_factory=SimSection)
+    search: SearchConfig = field(default_factory=SearchConfig)
+    cost: CostConfig = field(default_factory=CostConfig)
+    feedback: FeedbackConfig = field(default_factory=FeedbackConfig)

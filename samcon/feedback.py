@@ -1,0 +1,127 @@
+"""Per-segment linear feedback policies regressed from SAMCON samples, and the evaluator policies of a SAMCON run.
+
+Liu et al. (2016) and the tracking-control lectures: for segment k, the offset held over the segment is
+``a = M_k s + b_k`` with ``s`` the feedback features (:func:`samcon.cost.feedback_features`) at the segment's start,
+fitted by least squares to the lowest-cost SAMCON samples of that segment: ``M = [(S^T S)^-1 S^T A]^T`` on
+centred S and A, ``b = mean(a) - M mean(s)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from common.evaluate import Policy
+from common.gym import StepResult
+from common.humanoid import Humanoid
+from common.motion_library import MotionLibrary
+from samcon.cost import feedback_features
+
+
+def fit_linear(features: np.ndarray, actions: np.ndarray, ridge: float) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares ``a ~ M s + b`` with a ridge term.
+
+    The ridge is ``ridge * trace(S^T S) / D`` on the centred features (relative, so one value suits any feature
+    scale): a segment's samples start from only ``keep`` distinct states, so S^T S is rank-deficient (or nearly so)
+    and the plain normal equations would fit gains to noise; the ridge shrinks them towards 0, i.e. towards the
+    open-loop offset b. When every sample starts from one state (the clip's first segment), M = 0.
+
+    Args:
+        features: Shape: (n, D).
+        actions: Shape: (n, A).
+        ridge: Relative ridge (0: ordinary least squares; needs n > D then).
+
+    Returns:
+        M: Shape: (A, D). b: Shape: (A,).
+    """
+    s_mean, a_mean = features.mean(axis=0), actions.mean(axis=0)
+    s, a = features - s_mean, actions - a_mean
+    gram = s.T @ s
+    # The floor keeps the system solvable when the samples share one start state (the first segment): M = 0 then.
+    lam = max(ridge * np.trace(gram) / max(1, len(gram)), 1e-12)
+    gain = np.linalg.solve(gram + lam * np.eye(len(gram)), s.T @ a).T
+    return gain, a_mean - gain @ s_mean
+
+
+@dataclass
+class ClipPlan:
+    """What a SAMCON run holds for one clip. S segments, F frames.
+
+    Attributes:
+        targets: Open-loop PD targets from the clip's start. Shape: (F, nu).
+        bounds: First frame of each segment and F. Shape: (S + 1,).
+        gain: Feedback gains M_k. Shape: (S, nu, D).
+        bias: Feedback offsets b_k. Shape: (S, nu).
+    """
+
+    targets: np.ndarray
+    bounds: np.ndarray
+    gain: np.ndarray
+    bias: np.ndarray
+
+
+def _frame_index(result: StepResult, dt: float) -> np.ndarray:
+    return np.rint(result.time / dt).astype(np.int64)
+
+
+def open_loop_policy(plans: dict[str, ClipPlan], library: MotionLibrary, humanoid: Humanoid) -> Policy:
+    """The open-loop trajectories as an evaluator policy, meant for episodes that start at t = 0: the stored target
+    of the current frame; past a trajectory's end, or for a clip it lacks, the reference's next-frame angles."""
+
+    def policy(result: StepResult) -> np.ndarray:
+        out = result.ref_next.qpos[:, humanoid.hinge_qpos].copy()
+        frame = _frame_index(result, library.dt)
+        for i, (c, f) in enumerate(zip(result.clip, frame, strict=True)):
+            plan = plans.get(library.names[c])
+            if plan is not None and f < len(plan.targets):
+                out[i] = plan.targets[f]
+        return out
+
+    return policy
+
+
+def segment_of(plan: ClipPlan, frame: int, loop_frames: int | None) -> int:
+    """The segment whose frames match ``frame``: a loop clip past the tracked range goes back whole cycles
+    (``loop_frames`` frames each) until it falls inside it; a one-shot clip holds its last segment."""
+    tracked = int(plan.bounds[-1])
+    if loop_frames and frame >= tracked:
+        frame -= int(np.ceil((frame - tracked + 1) / loop_frames)) * loop_frames
+    frame = min(max(frame, 0), tracked - 1)
+    return int(np.searchsorted(plan.bounds, frame, side="right") - 1)
+
+
+class FeedbackPolicy:
+    """The time-indexed linear feedback policies as an evaluator policy, from any start.
+
+    The correction ``M_k s + b_k`` is computed at the first frame of each segment an episode enters (or at its
+    start) and held until the segment ends, as in SAMCON, on the reference's next-frame hinge angles. A clip the run
+    did not track gets the reference's angles (no correction).
+    """
+
+    def __init__(self, plans: dict[str, ClipPlan], library: MotionLibrary, humanoid: Humanoid) -> None:
+        self.plans, self.library, self.humanoid = plans, library, humanoid
+        self._episode: np.ndarray | None = None
+        self._segment: np.ndarray | None = None
+        self._held: np.ndarray | None = None
+
+    def __call__(self, result: StepResult) -> np.ndarray:
+        n, nu = len(result.clip), self.humanoid.nu
+        if self._episode is None or len(self._episode) != n:
+            self._episode, self._segment, self._held = np.full(n, -1), np.full(n, -1), np.zeros((n, nu))
+        frame = _frame_index(result, self.library.dt)
+        seg = np.full(n, -1)
+        for i, (c, f) in enumerate(zip(result.clip, frame, strict=True)):
+            plan = self.plans.get(self.library.names[c])
+            if plan is not None:
+                loop = int(round(self.library.duration[c] / self.library.dt)) if self.library.loop[c] else None
+                seg[i] = segment_of(plan, int(f), loop)
+        renew = (result.episode_id != self._episode) | (seg != self._segment)
+        if renew.any():
+            ids = np.flatnonzero(renew)
+            s = feedback_features(self.humanoid, result.sim[ids], result.ref[ids])
+            for j, i in enumerate(ids):
+                plan = self.plans.get(self.library.names[result.clip[i]])
+                self._held[i] = 0.0 if plan is None else plan.gain[seg[i]] @ s[j] + plan.bias[seg[i]]
+        self._episode, self._segment = result.episode_id.copy(), seg
+        return result.ref_next.qpos[:, self.humanoid.hinge_qpos] + self._held

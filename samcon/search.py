@@ -1,0 +1,246 @@
+"""SAMCON: sampling-based tracking of one clip, segment by segment (Liu et al. 2010; the 2015 distribution update).
+
+A clip's first ``F`` control steps are cut into segments of ``segment_frames`` steps. For each segment, from the
+saved full MuJoCo states of the ``keep`` samples kept at the end of the previous one (the clip's start state for
+the first), ``samples`` candidates are simulated, one character each, in one batched rollout: candidate i starts
+from kept state ``i mod keep`` and holds the PD targets ``reference next-frame hinge angles + offset_i`` for the
+whole segment, ``offset_i = guide(s_i) + mean + sigma * z_i`` with z standard normal and s the kept state's
+feedback features (``guide`` is 0 unless the search is re-run around linear feedback policies). Each candidate is
+scored by the tracking cost averaged over the segment's frames. After each of ``iterations`` rounds, mean and sigma
+(one per actuator, CMA-style diagonal) move to the log-weighted ``elite`` of the round; the best ``keep`` of all
+rounds are kept. At the end, the lowest-cost kept sample is traced back through its parents: the open-loop
+trajectory.
+
+The physics is :class:`common.sim.BatchedSim`, stepped one control step per rollout like the gym, so that the
+trajectory replays bit-exactly in the shared evaluator from the same start state (MuJoCo's solver warm start is
+reset at every rollout call, so a segment simulated as one long rollout would not).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from common.gym import GymConfig, TrackingGym
+from common.humanoid import Humanoid
+from common.kinematics import ForwardKinematics
+from common.motion_library import CharacterState, MotionLibrary
+from common.sim import BatchedSim
+from samcon.config import CostConfig, SearchConfig
+from samcon.cost import COST_TERMS, feedback_features, tracking_cost
+
+Guide = Callable[[int, np.ndarray], np.ndarray]
+"""(segment k, feedback features (n, D)) -> base offsets (n, nu)."""
+Progress = Callable[[int, int, float, float], None]
+"""(segment k, segments, cost of the best kept sample, seconds so far)."""
+
+
+@dataclass
+class Trajectory:
+    """SAMCON's result for one clip. S segments, F frames, D features.
+
+    Attributes:
+        clip: Clip name.
+        start_state: The full MuJoCo state it starts from (the gym's reset at t = 0). Shape: (nstate,).
+        targets: Absolute PD targets of every control step. Shape: (F, nu).
+        offsets: The chosen offset of every segment (on the reference's next-frame hinge angles). Shape: (S, nu).
+        bounds: First frame of every segment and F. Shape: (S + 1,).
+        segment_cost: Tracking cost of the chosen sample in every segment. Shape: (S,).
+        segment_terms: Its unweighted cost terms (mean over the segment), {name: (S,)}; ``fallen``: frames fallen.
+        end_states: Full state of the chosen sample at every segment's end. Shape: (S, nstate).
+        samples: Candidates simulated in all.
+        seconds: Wall-clock of the search.
+        features: Per segment, the feedback features of the regression samples' start states, [(n_k, D)].
+        actions: Per segment, their offsets, [(n_k, nu)].
+        kept_cost: Per segment, the costs of the samples kept, lowest first, [(keep,)].
+        path_features: Feedback features of the chosen path at every segment's start. Shape: (S, D).
+    """
+
+    clip: str
+    start_state: np.ndarray
+    targets: np.ndarray
+    offsets: np.ndarray
+    bounds: np.ndarray
+    segment_cost: np.ndarray
+    segment_terms: dict[str, np.ndarray]
+    end_states: np.ndarray
+    samples: int
+    seconds: float
+    features: list[np.ndarray]
+    actions: list[np.ndarray]
+    kept_cost: list[np.ndarray]
+    path_features: np.ndarray
+
+    @property
+    def frames(self) -> int:
+        return int(self.bounds[-1])
+
+
+def horizon(library: MotionLibrary, clip: int, max_frames: int) -> int:
+    """Control steps the shared evaluator plays from the clip's start (loop clips: max_frames)."""
+    return int(max_frames if library.loop[clip] else min(max_frames, library.num_frames[clip] - 1))
+
+
+def start_state(library: MotionLibrary, humanoid: Humanoid, clip: int, rsi_lift: bool = False) -> np.ndarray:
+    """The full MuJoCo state the gym resets clip ``clip`` to at t = 0. Shape: (nstate,)."""
+    gym = TrackingGym(GymConfig(num_envs=1, threads=1, physics=humanoid.physics, rsi_lift=rsi_lift), library, humanoid)
+    try:
+        gym.reset(clips=np.array([clip]), times=np.array([0.0]))
+        return gym.sim.state[0].copy()
+    finally:
+        gym.close()
+
+
+def reference_frames(library: MotionLibrary, clip: int, frames: int) -> CharacterState:
+    """The reference at frames 0..F, each time computed as the gym does (previous time + dt). Leading shape (F+1,)."""
+    dt = library.dt
+    times = np.concatenate([[0.0], np.arange(frames) * dt + dt])
+    return library.query(np.full(frames + 1, clip), times)
+
+
+def _log_weights(n: int) -> np.ndarray:
+    """CMA-ES recombination weights ln(n + 1/2) - ln(i), normalised. Shape: (n,)."""
+    w = np.log(n + 0.5) - np.log(np.arange(1, n + 1))
+    return w / w.sum()
+
+
+def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, search: SearchConfig,
+           cost: CostConfig, rng: np.random.Generator, *, threads: int = 1, max_speed: float = 1000.0,
+           guide: Guide | None = None, regression_samples: int = 60, fresh_share: float = 0.0,
+           rsi_lift: bool = False, progress: Progress | None = None) -> Trajectory:  # fmt: skip
+    """Tracks the first ``frames`` control steps of clip ``clip`` from its start (see the module docstring).
+
+    Args:
+        guide: Base offsets from the feedback features (None: 0).
+        regression_samples: Lowest-cost candidates per segment kept for the feedback regression.
+        fresh_share: Share of each round's candidates started on the reference state at the segment's start instead
+            of a kept state (as an evaluation episode starts): they enter the regression only, never the kept states
+            (the trajectory must be continuous) nor the distribution update.
+        rsi_lift: The gym's start lift (must match the evaluator's).
+    """
+    t0 = time.perf_counter()
+    n, nu, hinge = search.samples, humanoid.nu, humanoid.hinge_qpos
+    ref = reference_frames(library, clip, frames)
+    bounds = np.append(np.arange(0, frames, search.segment_frames), frames)
+    sim = BatchedSim(humanoid, n, threads, max_speed)
+    fk = ForwardKinematics(humanoid, threads)
+    start = start_state(library, humanoid, clip, rsi_lift)
+    kept = start[None]
+    nq, nv = humanoid.nq, humanoid.nv
+    mean = np.zeros(nu)
+    fresh = np.arange(n) >= n - int(round(fresh_share * n))
+    fresh_state = np.zeros_like(kept)
+    history: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]] = []
+    features, actions = [], []
+    try:
+        for k in range(len(bounds) - 1):
+            f0, f1 = int(bounds[k]), int(bounds[k + 1])
+            kept_fk = fk(kept[:, 1 : 1 + nq].copy(), kept[:, 1 + nq : 1 + nq + nv].copy())
+            kept_feat = feedback_features(humanoid, kept_fk, ref[np.full(len(kept), f0)])
+            mean, sigma = search.mean_carry * mean, np.full(nu, search.sigma_init)
+            fresh_state[:, 1 : 1 + nq], fresh_state[:, 1 + nq : 1 + nq + nv] = ref.qpos[f0], ref.qvel[f0]
+            fresh_feat = feedback_features(humanoid, fk(ref.qpos[f0 : f0 + 1], ref.qvel[f0 : f0 + 1]), ref[[f0]])
+            rounds = []
+            for _ in range(search.iterations):
+                parent = np.arange(n) % len(kept)
+                starts, feat = kept[parent], kept_feat[parent]
+                starts[fresh], feat[fresh] = fresh_state, fresh_feat
+                base = guide(k, feat) if guide is not None else np.zeros((n, nu))
+                noise = mean + sigma * rng.standard_normal((n, nu))
+                offset = base + noise
+                c, terms, end = _simulate(sim, fk, humanoid, cost, starts, offset, ref, f0, f1, hinge)
+                rounds.append((parent, offset, c, end, terms, feat, fresh))
+                elite = np.flatnonzero(~fresh)[np.argsort(c[~fresh], kind="stable")[: search.elite]]
+                w = _log_weights(len(elite))
+                mean = w @ noise[elite]
+                spread = np.sqrt(w @ (noise[elite] - mean) ** 2)
+                sigma = np.maximum(search.sigma_min, (1 - search.sigma_rate) * sigma + search.sigma_rate * spread)
+            parent, offset, c, end, _, feat, was_fresh = (np.concatenate([r[i] for r in rounds]) if i != 4 else None
+                                                          for i in range(7))  # fmt: skip
+            terms = {key: np.concatenate([r[4][key] for r in rounds]) for key in rounds[0][4]}
+            order = np.argsort(c, kind="stable")
+            best = order[~was_fresh[order]][: search.keep]
+            good = order[: regression_samples][np.isfinite(c[order[:regression_samples]])]
+            features.append(feat[good])
+            actions.append(offset[good])
+            history.append((parent[best], offset[best], c[best], end[best], {k_: v[best] for k_, v in terms.items()},
+                            kept_feat[parent[best]]))  # fmt: skip
+            kept = end[best]
+            if progress is not None:
+                progress(k, len(bounds) - 1, float(c[best[0]]), time.perf_counter() - t0)
+    finally:
+        sim.close()
+        fk.close()
+    samples = n * search.iterations * (len(bounds) - 1)
+    return _trace_back(library.names[clip], start, history, ref, bounds, hinge, samples, time.perf_counter() - t0,
+                       features, actions)  # fmt: skip
+
+
+def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: CostConfig, starts: np.ndarray,
+              offset: np.ndarray, ref: CharacterState, f0: int, f1: int,
+              hinge: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:  # fmt: skip
+    """Simulates every candidate through frames [f0, f1) from ``starts`` (n, nstate) with targets ref + ``offset``.
+
+    Returns:
+        cost: Mean tracking cost over the segment's frames, inf for a blown-up simulation. Shape: (n,).
+        terms: Mean unweighted terms, {name: (n,)}; ``fallen``: frames fallen.
+        end: Full state at the segment's end. Shape: (n, nstate).
+    """
+    n = len(starts)
+    sim.state[:] = starts
+    total = np.zeros(n)
+    sums = {key: np.zeros(n) for key in (*COST_TERMS, "fallen")}
+    blown = np.zeros(n, dtype=bool)
+    for f in range(f0, f1):
+        blown |= sim.step(ref.qpos[f + 1, hinge][None] + offset)
+        # A blown-up character is put back on its start so that no NaN reaches the kinematics; it is never kept.
+        sim.state[blown] = starts[blown]
+        now = fk(sim.qpos.copy(), sim.qvel.copy())
+        c, terms = tracking_cost(humanoid, cost, now, ref[np.full(n, f + 1)])
+        total += c
+        for key in sums:
+            sums[key] += terms[key]
+    frames = f1 - f0
+    total = np.where(blown, np.inf, total / frames)
+    return total, {k: v / (frames if k != "fallen" else 1) for k, v in sums.items()}, sim.state.copy()
+
+
+def _trace_back(name: str, start: np.ndarray, history: list, ref: CharacterState, bounds: np.ndarray,
+                hinge: np.ndarray, samples: int, seconds: float, features: list[np.ndarray],
+                actions: list[np.ndarray]) -> Trajectory:  # fmt: skip
+    """The lowest-cost kept sample of the last segment, traced back through its parents to the start."""
+    nseg = len(history)
+    j = int(np.argmin(history[-1][2]))
+    chosen = np.zeros(nseg, dtype=np.int64)
+    for k in range(nseg - 1, -1, -1):
+        chosen[k] = j
+        j = int(history[k][0][j])
+    offsets = np.stack([history[k][1][chosen[k]] for k in range(nseg)])
+    per_frame = np.repeat(offsets, np.diff(bounds), axis=0)
+    frames = int(bounds[-1])
+    targets = ref.qpos[1 : frames + 1][:, hinge] + per_frame
+    return Trajectory(
+        clip=name, start_state=start, targets=targets, offsets=offsets, bounds=bounds,
+        segment_cost=np.array([history[k][2][chosen[k]] for k in range(nseg)]),
+        segment_terms={key: np.array([history[k][4][key][chosen[k]] for k in range(nseg)]) for key in history[0][4]},
+        end_states=np.stack([history[k][3][chosen[k]] for k in range(nseg)]), samples=samples, seconds=seconds,
+        features=features, actions=actions, kept_cost=[h[2] for h in history],
+        path_features=np.stack([history[k][5][chosen[k]] for k in range(nseg)]),
+    )  # fmt: skip
+
+
+def replay(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, max_speed: float = 1000.0) -> np.ndarray:
+    """Plays PD targets (F, nu) open loop from a full state (nstate,); the state after every step, (F, nstate)."""
+    sim = BatchedSim(humanoid, 1, 0, max_speed)
+    out = np.zeros((len(targets), len(start)))
+    try:
+        sim.state[0] = start
+        for f, target in enumerate(targets):
+            sim.step(target[None])
+            out[f] = sim.state[0]
+    finally:
+        sim.close()
+    return out

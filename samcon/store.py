@@ -1,0 +1,72 @@
+"""The HDF5 file of a SAMCON run: per clip, the open-loop trajectory, its costs and the linear feedback policies.
+
+Layout (``samcon.h5``): attribute ``format = mimictrack.samcon``, ``version``, ``control_hz``, ``features`` (names);
+group ``clips/<name>`` with datasets ``targets`` (F, nu), ``offsets`` (S, nu), ``bounds`` (S + 1,),
+``segment_cost`` (S,), ``terms/<term>`` (S,), ``start_state`` (nstate,), ``end_states`` (S, nstate), ``gain``
+(S, nu, D), ``bias`` (S, nu) and attributes ``samples``, ``seconds``. Written to a temporary file and renamed.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from samcon.cost import FEATURE_NAMES
+from samcon.feedback import ClipPlan
+from samcon.search import Trajectory
+
+FORMAT = "mimictrack.samcon"
+VERSION = 1
+FILE_NAME = "samcon.h5"
+
+
+def save(path: str | Path, control_hz: float, results: list[tuple[Trajectory, np.ndarray, np.ndarray]]) -> None:
+    """Writes [(trajectory, gain (S, nu, D), bias (S, nu))] atomically."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with h5py.File(tmp, "w") as f:
+            f.attrs.update(format=FORMAT, version=VERSION, control_hz=control_hz)
+            f.attrs["features"] = np.array(FEATURE_NAMES, dtype="S")
+            for traj, gain, bias in results:
+                g = f.create_group(f"clips/{traj.clip}")
+                for name in ("targets", "offsets", "bounds", "segment_cost", "start_state", "end_states"):
+                    g.create_dataset(name, data=getattr(traj, name))
+                for name, values in traj.segment_terms.items():
+                    g.create_dataset(f"terms/{name}", data=values)
+                g.create_dataset("gain", data=gain)
+                g.create_dataset("bias", data=bias)
+                g.attrs.update(samples=traj.samples, seconds=traj.seconds)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def load_plans(path: str | Path, control_hz: float) -> tuple[dict[str, ClipPlan], dict[str, dict[str, float]]]:
+    """The plans of every clip and {clip: {"samples", "seconds"}}.
+
+    Raises:
+        ValueError: If the file is not a SAMCON file of this version and control rate, or its features differ.
+    """
+    path = Path(path)
+    try:
+        f = h5py.File(path, "r")
+    except OSError as e:
+        raise ValueError(f"{path}: not a readable HDF5 file ({e})") from None
+    with f:
+        if f.attrs.get("format") != FORMAT or int(f.attrs.get("version", -1)) != VERSION:
+            raise ValueError(f"{path}: not a {FORMAT} file of version {VERSION}")
+        if abs(float(f.attrs["control_hz"]) - control_hz) > 1e-9:
+            rate = float(f.attrs["control_hz"])
+            raise ValueError(f"{path}: tracked at {rate:g} Hz, the model runs at {control_hz:g} Hz")
+        if tuple(n.decode() for n in f.attrs["features"]) != FEATURE_NAMES:
+            raise ValueError(f"{path}: feedback features {list(f.attrs['features'])} differ from this version's")
+        plans, info = {}, {}
+        for name, g in f["clips"].items():
+            plans[name] = ClipPlan(targets=g["targets"][()], bounds=g["bounds"][()], gain=g["gain"][()],
+                                   bias=g["bias"][()])  # fmt: skip
+            info[name] = {"samples": int(g.attrs["samples"]), "seconds": float(g.attrs["seconds"])}
+    return plans, info

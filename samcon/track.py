@@ -1,0 +1,173 @@
+"""``track-samcon``: SAMCON open-loop trajectories and linear feedback policies for clips, as a run directory.
+
+For every clip: SAMCON from the clip's start (:mod:`samcon.search`), a linear feedback policy per segment regressed
+from its samples (:mod:`samcon.feedback`), optionally refined by re-running SAMCON around it; then both judged by
+the shared evaluator: the open-loop trajectory from the clip's start (one episode per clip), the feedback policy
+under the run's protocol. The run directory holds ``config.yaml``, ``run_info.json``, ``samcon.h5``,
+``progress.log`` and ``results.json``.
+
+Example::
+
+    track-samcon --motions walk run --out runs/samcon-walk-run
+    track-samcon --config configs/samcon/debug.yaml --motions walk --out runs/samcon-debug
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import replace
+from datetime import datetime
+from typing import Any
+
+import numpy as np
+
+from common.config import ConfigError, atomic_output, load_config
+from common.evaluate import EvalResult, evaluate
+from common.humanoid import Humanoid
+from common.motion import MotionFormatError
+from common.motion_dataset import load_motions
+from common.motion_library import MotionLibrary
+from common.run import RunDir, RunDirError
+from samcon import store
+from samcon.config import FeedbackConfig, SamconConfig
+from samcon.cost import COST_TERMS
+from samcon.feedback import ClipPlan, FeedbackPolicy, fit_linear, open_loop_policy
+from samcon.search import Trajectory, horizon, samcon
+
+LEARNER = "samcon"
+
+
+def fit_policies(traj: Trajectory, config: FeedbackConfig) -> tuple[np.ndarray, np.ndarray]:
+    """One linear map per segment from its regression samples: gain (S, nu, D), bias (S, nu)."""
+    return anchored(traj, config, *fit_samples(traj, config))
+
+
+def fit_samples(traj: Trajectory, config: FeedbackConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The lectures' regression on every segment's samples: gain (S, nu, D), bias (S, nu)."""
+    fits = [fit_linear(s, a, config.ridge) for s, a in zip(traj.features, traj.actions, strict=True)]
+    return np.stack([m for m, _ in fits]), np.stack([b for _, b in fits])
+
+
+def anchored(traj: Trajectory, config: FeedbackConfig, gain: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, ...]:
+    """With ``feedback.anchor: path``, the bias that puts ``traj``'s offsets at its own start features."""
+    if config.anchor == "path":
+        bias = traj.offsets - np.einsum("kad,kd->ka", gain, traj.path_features)
+    return gain, bias
+
+
+def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, clip: int, rng: np.random.Generator,
+               log: Any) -> tuple[Trajectory, np.ndarray, np.ndarray]:  # fmt: skip
+    """SAMCON on one clip, the feedback fit, and its refinements; prints progress per segment into ``log``."""
+    name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
+
+    def progress(k: int, segments: int, best: float, seconds: float) -> None:
+        print(f"{name} segment {k + 1}/{segments} cost {best:.4g} {seconds:.0f} s", file=log, flush=True)
+
+    fb = cfg.feedback
+    common = dict(threads=cfg.train.threads, max_speed=cfg.gym.max_speed, regression_samples=fb.samples,
+                  fresh_share=fb.fresh_share, rsi_lift=cfg.train.eval.rsi_lift, progress=progress)  # fmt: skip
+    traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng, **common)
+    gain, bias = fit_policies(traj, cfg.feedback)
+    around = replace(cfg.search, sigma_init=cfg.feedback.refine_sigma, mean_carry=0.0)
+    for _ in range(cfg.feedback.refine_iterations):
+        g, b = gain, bias
+
+        def guide(k: int, s: np.ndarray, g: np.ndarray = g, b: np.ndarray = b) -> np.ndarray:
+            return s @ g[k].T + b[k]
+
+        again = samcon(humanoid, library, clip, frames, around, cfg.cost, rng, guide=guide, **common)
+        # The open-loop trajectory stays the better of the two searches (the policy is anchored on it); the samples
+        # and time add up.
+        best = again if again.segment_cost.sum() < traj.segment_cost.sum() else traj
+        traj = replace(best, samples=traj.samples + again.samples, seconds=traj.seconds + again.seconds)
+        gain, bias = anchored(traj, cfg.feedback, *fit_samples(again, cfg.feedback))
+    return traj, gain, bias
+
+
+def diagnose(traj: Trajectory, cfg: SamconConfig) -> dict[str, Any]:
+    """Where the trajectory is worst: the largest weighted cost term, and the first frame it fell (None: never)."""
+    weighted = {k: float(getattr(cfg.cost, k) * traj.segment_terms[k].mean()) for k in COST_TERMS}
+    fell = np.flatnonzero(traj.segment_terms["fallen"] > 0)
+    return {"largest_term": max(weighted, key=weighted.get), "weighted_terms": weighted,
+            "first_fall_frame": int(traj.bounds[fell[0]]) if len(fell) else None}  # fmt: skip
+
+
+def _clip_rows(library: MotionLibrary, results: list[tuple[Trajectory, np.ndarray, np.ndarray]],
+               open_loop: EvalResult, feedback: EvalResult, cfg: SamconConfig) -> dict[str, Any]:  # fmt: skip
+    rows = {}
+    for c, (traj, _, _) in enumerate(results):
+        seconds_of_motion = traj.frames * library.dt
+        rows[traj.clip] = {
+            "frames": traj.frames, "samples": traj.samples, "minutes": traj.seconds / 60.0,
+            "minutes_per_motion_second": traj.seconds / 60.0 / seconds_of_motion,
+            "open_loop": {k: float(open_loop.per_clip[k][c]) for k in ("mpjpe_g", "mpjpe_l", "survival")},
+            "feedback": {k: float(feedback.per_clip[k][c]) for k in ("mpjpe_g", "mpjpe_l", "survival", "success")},
+            "cost_total": float(traj.segment_cost.sum()), **diagnose(traj, cfg),
+        }  # fmt: skip
+    return rows
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="track-samcon", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("--config", default="configs/samcon/default.yaml", help="YAML config file")
+    parser.add_argument("--motions", nargs="+", default=None, help="motions to track, overriding train.motions")
+    parser.add_argument("--out", default=None, help="run directory (default: runs/samcon-<date>-<time>); must be new")
+    parser.add_argument("--seed", type=int, default=None, help="sampling seed (train.seed)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="override any config value, e.g. --set search.samples=400 (repeatable)")  # fmt: skip
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
+    overrides = list(args.overrides)
+    if args.motions is not None:
+        overrides.append("train.motions=[" + ", ".join(repr(m) for m in args.motions) + "]")
+    if args.seed is not None:
+        overrides.append(f"train.seed={args.seed}")
+    try:
+        cfg = load_config(SamconConfig, args.config, overrides)
+        humanoid = Humanoid(cfg.gym.physics)
+        library = load_motions(list(cfg.train.motions), humanoid)
+        run_dir = RunDir(args.out or f"runs/{LEARNER}-{datetime.now().strftime('%Y%m%d-%H%M%S')}", resume=False)
+    except (ConfigError, RunDirError, MotionFormatError, FileNotFoundError) as e:
+        sys.exit(f"error: {e}")
+    run_dir.save_config(cfg)
+    info = run_dir.write_run_info({"learner": LEARNER, "seed": cfg.train.seed, "motions": list(library.names)})
+    rng = np.random.default_rng(cfg.train.seed)
+    t0 = time.perf_counter()
+    with open(run_dir.path / "progress.log", "a", encoding="utf-8") as log:
+        results = [track_clip(cfg, humanoid, library, c, rng, log) for c in range(library.num_clips)]
+        seconds = time.perf_counter() - t0
+        store.save(run_dir.path / store.FILE_NAME, humanoid.physics.control_hz, results)
+        plans = {t.clip: ClipPlan(t.targets, t.bounds, g, b) for t, g, b in results}
+        ev = cfg.train.eval
+        open_loop = evaluate(open_loop_policy(plans, library, humanoid), library, humanoid,
+                             replace(ev, starts_per_clip=1, max_frames=cfg.train.max_frames))  # fmt: skip
+        feedback = evaluate(FeedbackPolicy(plans, library, humanoid), library, humanoid, ev)
+        print(f"open loop from each clip's start:\n{open_loop.table()}", file=log, flush=True)
+        print(f"linear feedback ({ev.starts_per_clip} starts per clip):\n{feedback.table()}", file=log, flush=True)
+    samples = int(sum(t.samples for t, _, _ in results))
+    out = {"clips": _clip_rows(library, results, open_loop, feedback, cfg), "seconds": seconds, "samples": samples,
+           "open_loop_overall": open_loop.overall, "feedback_overall": feedback.overall}  # fmt: skip
+    with atomic_output(run_dir.path / "results.json") as tmp:
+        tmp.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
+    # The report takes the run's policy from this file (a SAMCON run has no training checkpoints).
+    info.update(policy_file=store.FILE_NAME, samples=samples, train_seconds=seconds)
+    with atomic_output(run_dir.run_info_path) as tmp:
+        tmp.write_text(json.dumps(info, indent=2, default=str) + "\n", encoding="utf-8")
+    for name, row in out["clips"].items():
+        ol, fb = row["open_loop"], row["feedback"]
+        print(f"{name}: open loop MPJPE-g {ol['mpjpe_g']:.1f} mm, MPJPE-l {ol['mpjpe_l']:.1f} mm, survived "
+              f"{ol['survival']:.0%}; feedback survival {fb['survival']:.0%}, MPJPE-g {fb['mpjpe_g']:.1f} mm; "
+              f"{row['minutes_per_motion_second']:.2f} min per s of motion, {row['samples']} samples")  # fmt: skip
+    print(f"run: {run_dir.path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,42 @@
+"""The linear feedback regression and the time index of its policies."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from samcon.feedback import ClipPlan, fit_linear, segment_of
+
+
+def test_regression_recovers_a_known_linear_map() -> None:
+    rng = np.random.default_rng(0)
+    gain, bias = rng.normal(size=(28, 16)), rng.normal(size=28)
+    s = rng.normal(size=(200, 16)) * rng.uniform(0.01, 2.0, size=16) + rng.normal(size=16)
+    m, b = fit_linear(s, s @ gain.T + bias, ridge=0.0)
+    np.testing.assert_allclose(m, gain, atol=1e-9)
+    np.testing.assert_allclose(b, bias, atol=1e-9)
+    # The lectures' formula, on centred data: M = [(S^T S)^-1 S^T A]^T.
+    a = s @ gain.T + bias + 0.01 * rng.normal(size=(200, 28))
+    sc, ac = s - s.mean(0), a - a.mean(0)
+    m, b = fit_linear(s, a, ridge=0.0)
+    np.testing.assert_allclose(m, (np.linalg.inv(sc.T @ sc) @ sc.T @ ac).T, atol=1e-9)
+    np.testing.assert_allclose(b, a.mean(0) - m @ s.mean(0), atol=1e-12)
+
+
+def test_ridge_shrinks_and_one_start_state_gives_no_gain() -> None:
+    rng = np.random.default_rng(1)
+    s = rng.normal(size=(50, 4))
+    a = s @ np.diag([1.0, 2.0, 3.0, 4.0])[:2].T
+    free, _ = fit_linear(s, a, 0.0)
+    shrunk, _ = fit_linear(s, a, 1.0)
+    assert np.linalg.norm(shrunk) < np.linalg.norm(free)
+    same = np.ones((10, 4))  # every sample from one state: M = 0, b = the mean offset
+    m, b = fit_linear(same, np.arange(20.0).reshape(10, 2), 0.1)
+    np.testing.assert_allclose(m, 0.0, atol=1e-9)
+    np.testing.assert_allclose(b, [9.0, 10.0], atol=1e-9)
+
+
+def test_segment_of_a_frame() -> None:
+    plan = ClipPlan(np.zeros((18, 1)), np.array([0, 6, 12, 18]), np.zeros((3, 1, 1)), np.zeros((3, 1)))
+    assert [segment_of(plan, f, None) for f in (0, 5, 6, 17, 30)] == [0, 0, 1, 2, 2]
+    # Loop of 12 frames, tracked to 18: frame 20 is frame 8 a cycle earlier, frame 41 frame 17 two cycles earlier.
+    assert segment_of(plan, 20, 12) == 1 and segment_of(plan, 41, 12) == 2

@@ -1,0 +1,74 @@
+"""``track-samcon`` end to end on the debug config: its run directory, the report reading it, bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from report.compare import build_report
+from report.runs import ReportError, load_run
+from samcon.track import main
+
+ROOT = Path(__file__).resolve().parents[2]
+DEBUG = str(ROOT / "configs/samcon/debug.yaml")
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("samcon") / "run"
+    main(["--config", DEBUG, "--out", str(out)])
+    return out
+
+
+def test_debug_run_writes_its_run_directory(run: Path) -> None:
+    for name in ("config.yaml", "run_info.json", "results.json", "samcon.h5", "progress.log"):
+        assert (run / name).is_file(), name
+    info = json.loads((run / "run_info.json").read_text())
+    results = json.loads((run / "results.json").read_text())
+    assert info["learner"] == "samcon" and info["policy_file"] == "samcon.h5" and info["motions"] == ["walk"]
+    walk = results["clips"]["walk"]
+    # Two segments of 3 frames, 8 samples x 2 rounds each, plus one refinement search of the same size.
+    assert walk["frames"] == 6 and walk["samples"] == 2 * 2 * 8 * 2 == info["samples"]
+    log = (run / "progress.log").read_text()
+    assert "walk segment 1/2" in log and "walk segment 2/2" in log
+
+
+def test_compare_trackers_reads_a_samcon_run(run: Path, tmp_path: Path) -> None:
+    report = build_report([run], tmp_path / "report", max_frames=6, do_render=False)
+    results = json.loads((run / "results.json").read_text())["clips"]["walk"]
+    oracle, minutes = report.oracles[f"samcon:{run.name}"]
+    # The report re-plays the stored open-loop trajectory: the same numbers the run measured.
+    assert oracle.per_clip["mpjpe_g"][0] == pytest.approx(results["open_loop"]["mpjpe_g"], rel=1e-12)
+    assert minutes["walk"] == pytest.approx(results["minutes"], rel=1e-9)
+    assert report.results[0].per_clip["mpjpe_g"][0] == pytest.approx(results["feedback"]["mpjpe_g"], rel=1e-12)
+    md = (tmp_path / "report" / "report.md").read_text()
+    oracle_rows = md.split("## Oracle", 1)[1].split("\n\n")[1].splitlines()[2:]
+    cells = [c.strip() for c in oracle_rows[0].strip("|").split("|")]
+    assert cells[:2] == ["walk", f"samcon:{run.name}"] and cells[3] == "no"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--set", "search.sampels=3"], "unknown key 'search.sampels'"),
+        (["--motions", "nosuchclip"], "nosuchclip: no such motion file"),
+    ],
+)
+def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--config", DEBUG, "--out", str(tmp_path / "run"), *args])
+    text = str(exit_info.value.code)
+    assert text.startswith("error: ") and message in text and "\n" not in text
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_run_without_its_policy_file_is_refused(run: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    for name in ("config.yaml", "run_info.json"):
+        (copy / name).write_bytes((run / name).read_bytes())
+    with pytest.raises(ReportError, match="unfinished run: no samcon.h5"):
+        load_run(copy)
