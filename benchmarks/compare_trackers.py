@@ -1,76 +1,198 @@
-"""One-command comparison: train SuperTrack and PPO on the same clip(s) for the same wall-clock, then report.
+"""One-command head-to-head: train SuperTrack and PPO on a suite of clips, several seeds, the same wall-clock; report.
 
-Each (seed, learner) run trains in its own process, one after the other, so that every method gets the whole machine
-for the same training wall-clock (``--minutes``; evaluation time excluded, as in ``common.training``). Then
-``compare-trackers`` re-evaluates every final checkpoint on one protocol and writes the report; with ``--seeds N``
-the report also shows mean ± std over seeds.
+Every (seed, learner) run trains in its own process (a fresh interpreter: nothing shared between methods) for the
+same training wall-clock (``--minutes``; evaluation and SuperTrack's compile warm-up stay off that clock, as in
+``common.training``). Then ``compare-trackers`` re-evaluates every final checkpoint on one protocol and writes the
+report: learning curves with the spread over seeds, per-clip tables as mean ± std over seeds, samples and minutes to
+each threshold per seed, the world-model diagnostics, the robustness table and an MP4 per method and clip.
 
-The default (``--minutes 12``, one seed) finishes in about 30 minutes on a 2-core CPU: 2 x 12 minutes of training plus
-the periodic and final evaluations and the report.
+Scheduling (``--parallel``):
+- ``1`` (default): one run at a time with the configs' threads (the whole machine to each run).
+- ``P > 1``: P runs at a time, each on one core (``gym.threads=1``, ``train.torch_threads=1``,
+  ``train.eval.threads=1``); runs start seed by seed, both learners of a seed side by side, so that the methods
+  meet the same machine load.
 
-Run: ``.venv/bin/python benchmarks/compare_trackers.py --motions walk --minutes 12 --out runs/compare-walk``
-Smoke test: ``.venv/bin/python benchmarks/compare_trackers.py --debug --minutes 0.2 --out /tmp/compare-smoke``
+A run directory that already holds a finished run of the same command is reused; an unfinished one is resumed
+(``--resume``), so an interrupted suite continues where it stopped.
+
+Suites: walk, run, jump, locomotion (walk, jog, run, stealthy_walk, zombie_walk), all20 (the 20 bundled clips).
+
+Run:   ``.venv/bin/python benchmarks/compare_trackers.py --suite walk --seeds 2 --minutes 30 --parallel 2 \
+        --out runs/suite-walk``
+Smoke: ``.venv/bin/python benchmarks/compare_trackers.py --debug --seeds 2 --minutes 0.1 --out /tmp/compare-smoke``
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import shlex
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from common.logs import read_metrics  # noqa: E402
 from report.compare import main as compare_main  # noqa: E402
 
 LEARNERS = {"supertrack": "supertrack.train", "ppo": "ppo.train"}
+SUITES = {
+    "walk": ["walk"],
+    "run": ["run"],
+    "jump": ["jump"],
+    "locomotion": ["walk", "jog", "run", "stealthy_walk", "zombie_walk"],
+    "all20": ["all"],
+}
+ONE_CORE = ["gym.threads=1", "train.torch_threads=1", "train.eval.threads=1"]
+COMMAND_FILE = "suite_command.json"  # the command a suite ran in a run directory (reuse only on the same command)
+
+
+@dataclass
+class Job:
+    """One training run of the suite."""
+
+    learner: str
+    seed: int
+    out: Path
+    cmd: list[str]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="compare_trackers.py", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", required=True, help="output directory (runs/ and report/ inside)")
-    parser.add_argument("--motions", nargs="+", default=["walk"], help="clip(s) both methods train and are judged on")
+    parser = argparse.ArgumentParser(prog="compare_trackers.py", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split(
+                                         "\n\n", 1)[1])  # fmt: skip
+    parser.add_argument("--out", required=True, help="output directory (runs/, logs/ and report/ inside)")
+    clips = parser.add_mutually_exclusive_group()
+    clips.add_argument("--suite", choices=sorted(SUITES), default=None, help="a named clip set (default: walk)")
+    clips.add_argument("--motions", nargs="+", default=None, help="clip(s) both methods train and are judged on")
     parser.add_argument("--minutes", type=float, default=12.0, help="training wall-clock per run, minutes")
     parser.add_argument("--seeds", type=int, default=1, help="seeds per method (0 .. N-1), for the spread")
+    parser.add_argument("--parallel", type=int, default=1,
+                        help="runs at a time; above 1 every run gets one core (see the scheduling notes)")
+    parser.add_argument("--learners", nargs="+", choices=sorted(LEARNERS), default=list(LEARNERS),
+                        help="methods to train (default: both)")  # fmt: skip
     parser.add_argument("--evals", type=int, default=8, help="evaluations logged per run (learning-curve points)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="config override passed to every run (repeatable)")  # fmt: skip
     parser.add_argument("--debug", action="store_true", help="the tiny debug configs (tests and smoke runs)")
     parser.add_argument("--starts", type=int, default=None, help="start frames per clip of the final evaluation")
-    parser.add_argument("--no-render", action="store_true", help="skip the filmstrips")
+    parser.add_argument("--no-render", action="store_true", help="skip the filmstrips and videos")
+    parser.add_argument("--no-pushes", action="store_true", help="skip the robustness re-evaluation")
+    parser.add_argument("--train-only", action="store_true", help="train (or reuse) the runs, build no report")
     return parser
 
 
-def train(learner: str, seed: int, args: argparse.Namespace, out: Path) -> None:
-    """Trains one run in a child process (a fresh interpreter: no state shared between methods)."""
+def suite_motions(args: argparse.Namespace) -> list[str]:
+    if args.motions:
+        return list(args.motions)
+    return list(SUITES[args.suite or "walk"])
+
+
+def jobs(args: argparse.Namespace, out: Path) -> list[Job]:
+    """The suite's runs, seed-major (both learners of a seed next to each other)."""
     preset = "debug" if args.debug else "default"
-    config = ROOT / "configs" / learner / f"{preset}.yaml"
-    cmd = [sys.executable, "-m", LEARNERS[learner], "--config", str(config), "--out", str(out), "--seed", str(seed),
-           "--max-minutes", str(args.minutes), "--motions", *args.motions]  # fmt: skip
+    sets = list(args.set)
     if args.debug:
-        # The debug presets stop after a few iterations; the wall-clock budget must rule instead.
-        cmd += ["--set", "train.max_iterations=null"]
+        sets.append("train.max_iterations=null")  # the debug presets stop after a few iterations; the clock rules
     else:
-        # Evaluate at fixed shares of the budget so both methods get the same number of curve points.
-        cmd += ["--set", f"train.eval_every_minutes={args.minutes / max(args.evals, 1)}"]
-    print(f"[{time.strftime('%H:%M:%S')}] {learner} seed {seed}: {' '.join(cmd)}", flush=True)
-    subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+        sets.append(f"train.eval_every_minutes={args.minutes / max(args.evals, 1)}")
+    if args.parallel > 1:
+        sets += ONE_CORE
+    out_jobs = []
+    for seed in range(args.seeds):
+        for learner in args.learners:
+            run_dir = out / "runs" / f"{learner}-s{seed}"
+            config = ROOT / "configs" / learner / f"{preset}.yaml"
+            cmd = [sys.executable, "-m", LEARNERS[learner], "--config", str(config),
+                   "--out", str(run_dir), "--seed", str(seed), "--max-minutes", str(args.minutes),
+                   "--motions", *suite_motions(args)]  # fmt: skip
+            for s in sets:
+                cmd += ["--set", s]
+            out_jobs.append(Job(learner, seed, run_dir, cmd))
+    return out_jobs
+
+
+def finished(run_dir: Path, minutes: float) -> bool:
+    """True when the run's log ends with the final evaluation of a spent wall-clock budget."""
+    try:
+        rows = read_metrics(run_dir)
+    except (OSError, ValueError):
+        return False
+    if not rows or not (run_dir / "checkpoints" / "latest.json").exists():
+        return False
+    last = rows[-1]
+    return "eval/mpjpe_g" in last and float(last.get("wall_clock_s", 0.0)) >= 60.0 * minutes
+
+
+def _log(msg: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
+
+
+def _start(job: Job, args: argparse.Namespace, logs: Path) -> subprocess.Popen | None:
+    """Starts a job's process; None when the run directory already holds it finished."""
+    marker = job.out / COMMAND_FILE
+    same = marker.exists() and json.loads(marker.read_text()).get("args") == job.cmd[1:]
+    if job.out.exists() and finished(job.out, args.minutes) and (same or not marker.exists()):
+        _log(f"{job.learner} seed {job.seed}: finished run in {job.out}, reused")
+        return None
+    cmd = list(job.cmd)
+    if (job.out / "checkpoints" / "latest.json").exists():
+        cmd.append("--resume")
+    elif job.out.exists() and any(job.out.iterdir()):
+        raise SystemExit(f"error: {job.out} holds files but no checkpoint; move it away or delete it")
+    _log(f"{job.learner} seed {job.seed}: {shlex.join(cmd)}")
+    logs.mkdir(parents=True, exist_ok=True)
+    log = open(logs / f"{job.learner}-s{job.seed}.log", "a", encoding="utf-8")  # noqa: SIM115 - closed with the process
+    return subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+
+
+def train_all(args: argparse.Namespace, out: Path) -> list[Job]:
+    """Runs the suite's jobs, ``--parallel`` at a time; raises SystemExit naming the log of a failed run."""
+    todo, running, done = jobs(args, out), [], []
+    pending = list(todo)
+    while pending or running:
+        while pending and len(running) < max(1, args.parallel):
+            job = pending.pop(0)
+            proc = _start(job, args, out / "logs")
+            if proc is None:
+                done.append(job)
+            else:
+                running.append((job, proc))
+        time.sleep(0.2 if args.debug else 5.0)
+        for job, proc in list(running):
+            if proc.poll() is None:
+                continue
+            running.remove((job, proc))
+            if proc.returncode != 0:
+                for _, other in running:
+                    other.terminate()
+                raise SystemExit(f"error: {job.learner} seed {job.seed} exited with {proc.returncode}; "
+                                 f"see {out / 'logs' / f'{job.learner}-s{job.seed}.log'}")  # fmt: skip
+            (job.out / COMMAND_FILE).write_text(json.dumps({"args": job.cmd[1:]}, indent=1) + "\n")
+            _log(f"{job.learner} seed {job.seed}: done")
+            done.append(job)
+    return todo
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.seeds < 1 or args.parallel < 1 or args.minutes <= 0:
+        raise SystemExit("error: --seeds and --parallel must be >= 1 and --minutes > 0")
     out = Path(args.out)
-    run_dirs = []
-    for seed in range(args.seeds):
-        for learner in LEARNERS:
-            run_dir = out / "runs" / f"{learner}-s{seed}"
-            train(learner, seed, args, run_dir)
-            run_dirs.append(str(run_dir))
-    report_args = [*run_dirs, "--out", str(out / "report"), "--motions", *args.motions]
+    todo = train_all(args, out)
+    if args.train_only:
+        return 0
+    report_args = [*(str(j.out) for j in todo), "--out", str(out / "report"), "--motions", *suite_motions(args)]
     if args.starts is not None:
         report_args += ["--starts", str(args.starts)]
     if args.no_render:
         report_args.append("--no-render")
+    if args.no_pushes:
+        report_args.append("--no-pushes")
     compare_main(report_args)
     return 0
 

@@ -62,7 +62,9 @@ def record_rollout(policy: Policy, library: MotionLibrary, humanoid: Humanoid, c
         protocol: Evaluation protocol (seed and termination rule).
 
     Returns:
-        (sim_qpos, ref_qpos), each (T, nq), T <= frames (shorter when the episode fails or the clip ends).
+        (sim_qpos, ref_qpos), each (T, nq), T <= frames: shorter when a one-shot clip ends, or when the episode fails
+        under the earlier protocol (``protocol.full_horizon`` False); under the full-horizon judge the character plays
+        on after a failure, as the evaluator scores it.
     """
     gym = TrackingGym(
         GymConfig(num_envs=1, threads=1, seed=protocol.seed, physics=humanoid.physics,
@@ -78,7 +80,7 @@ def record_rollout(policy: Policy, library: MotionLibrary, humanoid: Humanoid, c
             result = gym.step(policy(result), autoreset=False)
             sim.append(result.final_sim.qpos[0].copy())
             ref.append(result.final_ref.qpos[0].copy())
-            if result.terminated[0] or result.truncated[0]:
+            if result.truncated[0] or (result.terminated[0] and not protocol.full_horizon):
                 break
     finally:
         gym.close()

@@ -72,7 +72,8 @@ def _union(lists: Sequence[Sequence[str]]) -> list[str]:
 
 def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: int | None = None,
                  motions: Sequence[str] | None = None, starts: int | None = None, max_frames: int | None = None,
-                 render_clips: int = 1, do_render: bool = True, pushes: bool = True) -> Report:  # fmt: skip
+                 render_clips: int = 1, do_render: bool = True, pushes: bool = True,
+                 video_clips: int | None = None) -> Report:  # fmt: skip
     """Re-evaluates every run and writes the report into ``out``.
 
     Args:
@@ -83,8 +84,10 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
         starts: Start frames per clip; None: the first run's protocol.
         max_frames: Steps per evaluation episode; None: the first run's protocol.
         render_clips: Clips per run drawn as filmstrips.
-        do_render: False skips the filmstrips (no GL probing at all).
+        do_render: False skips the filmstrips and videos (no GL probing at all).
         pushes: Also re-evaluate every run under the robustness protocol (:class:`common.pushes.PushConfig`).
+        video_clips: Clips per method rendered as MP4 videos (the first run of each learner, i.e. its lowest seed);
+            None: every clip; 0: none.
 
     Raises:
         ReportError: On a bad run directory, an unknown learner, or motions that cannot be loaded.
@@ -134,7 +137,8 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
     if wm is not None:
         report.files["world_model"] = wm
     strips = _filmstrips(report, policies, library, humanoid, out, render_clips if do_render else 0)
-    md = _markdown(report, strips)
+    videos = _videos(report, policies, library, humanoid, out, video_clips if do_render else 0)
+    md = _markdown(report, strips, videos)
     (out / "report.md").write_text(md, encoding="utf-8")
     (out / "report.html").write_text(markdown_to_html(md, out, "Tracker comparison"), encoding="utf-8")
     (out / "results.json").write_text(json.dumps(_results_json(report), indent=1) + "\n", encoding="utf-8")
@@ -167,7 +171,39 @@ def _filmstrips(report: Report, policies: list[Policy], library: MotionLibrary, 
     return strips
 
 
-def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]]) -> str:
+def _videos(report: Report, policies: list[Policy], library: MotionLibrary, humanoid: Humanoid, out: Path,
+            clips: int | None) -> dict[str, list[tuple[str, Path]]]:  # fmt: skip
+    """{run label: [(clip, mp4)]} for the first run of each learner: the simulated character beside the translucent
+    reference over the evaluation horizon from t = 0; adds a note saying why when nothing could be rendered."""
+    count = library.num_clips if clips is None else min(clips, library.num_clips)
+    if count <= 0:
+        return {}
+    backend, why = render.find_backend()
+    if backend is None:
+        report.notes.append(f"Videos were not rendered: {why}.")
+        return {}
+    videos: dict[str, list[tuple[str, Path]]] = {}
+    seen: set[str] = set()
+    fps = humanoid.physics.control_hz
+    for run, policy in zip(report.runs, policies, strict=True):
+        if run.learner in seen:
+            continue
+        seen.add(run.learner)
+        for c in range(count):
+            name = library.names[c]
+            mp4 = out / f"video_{run.label.replace(':', '_').replace('#', '_')}_{name}.mp4"
+            sim, ref = render.record_rollout(policy, library, humanoid, c, report.protocol.max_frames, report.protocol)
+            try:
+                render.video(sim, ref, humanoid, mp4, backend, fps)
+            except (RuntimeError, OSError) as e:
+                report.notes.append(f"Video of {run.label} on {name} failed: {e}")
+                continue
+            videos.setdefault(run.label, []).append((name, mp4))
+    return videos
+
+
+def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]],
+              videos: dict[str, list[tuple[str, Path]]] | None = None) -> str:  # fmt: skip
     p = report.protocol
     labels = [r.label for r in report.runs]
     lines = ["# Tracker comparison", ""]
@@ -188,9 +224,11 @@ def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]]) -> str:
     if report.oracles:
         lines += ["## Oracle: SAMCON's open-loop trajectory from each clip's start, next to every run", "",
                   tables.oracle_table(report.oracles, labels, report.results), ""]  # fmt: skip
-    spread = tables.spread_table(report.runs, report.results)
+    spread = tables.spread_table(report.runs, report.results, report.pushed)
     if spread:
-        lines += ["## Spread over seeds (mean ± std of the overall numbers)", "", spread, ""]
+        lines += ["## Spread over seeds (mean ± std over each learner's runs, sample std)", "",
+                  "### Spread: mean over clips", "", spread, ""]  # fmt: skip
+        lines += ["### Spread per clip", "", tables.per_clip_spread_table(report.runs, report.results) or "", ""]
     lines += ["## Samples and wall-clock to reach thresholds (first logged evaluation)", "",
               tables.threshold_table(report.runs), ""]  # fmt: skip
     wm = tables.world_model_table(report.runs)
@@ -204,6 +242,10 @@ def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]]) -> str:
         lines += ["Not rendered (see the notes at the top).", ""]
     for label, items in strips.items():
         lines += [f"**{label}** on `{clip}`: ![{label} {clip}]({png.name})" for clip, png in items] + [""]
+    if videos:
+        lines += ["## Videos (MP4, simulated: opaque; reference: translucent; the first run of each method)", ""]
+        lines += [f"- [{label} on {clip}]({mp4.name})" for label, items in videos.items() for clip, mp4 in items]
+        lines += [""]
     lines += ["## Runs: machine, versions, seeds", "", tables.runs_table(report.runs), ""]
     lines += ["## Configs", "", tables.configs_block(report.runs)]
     return "\n".join(lines) + "\n"
@@ -248,7 +290,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--starts", type=int, default=None, help="start frames per clip (default: first run's)")
     parser.add_argument("--max-frames", type=int, default=None, help="steps per episode (default: first run's)")
     parser.add_argument("--render-clips", type=int, default=1, help="clips per run drawn as filmstrips")
-    parser.add_argument("--no-render", action="store_true", help="skip the filmstrips")
+    parser.add_argument("--no-render", action="store_true", help="skip the filmstrips and videos")
+    parser.add_argument("--video-clips", type=int, default=None, metavar="N",
+                        help="clips per method rendered as MP4 (first run of each learner; default: every clip)")
     parser.add_argument("--no-pushes", action="store_true",
                         help="skip the robustness re-evaluation (pushes on the pelvis)")  # fmt: skip
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
@@ -260,7 +304,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     torch.set_num_threads(max(1, args.threads))
     try:
         report = build_report(args.runs, args.out, args.checkpoint, args.motions, args.starts, args.max_frames,
-                              args.render_clips, not args.no_render, not args.no_pushes)  # fmt: skip
+                              args.render_clips, not args.no_render, not args.no_pushes,
+                              args.video_clips)  # fmt: skip
     except (ReportError, ConfigError) as e:
         sys.exit(f"error: {e}")
     for label, result in zip((r.label for r in report.runs), report.results, strict=True):

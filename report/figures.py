@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402 - the backend must be chosen first
@@ -26,20 +27,53 @@ def _colors(runs: list[Run]) -> dict[str, str]:
     return {name: cycle[i % len(cycle)] for i, name in enumerate(learners)}
 
 
+def _band(xs: list[list[float]], ys: list[list[float]], points: int = 50) -> tuple[np.ndarray, ...] | None:
+    """Mean, min and max over runs of curves y(x), interpolated on a grid spanning the x range all runs cover."""
+    xs_ok = [(np.asarray(x, float), np.asarray(y, float)) for x, y in zip(xs, ys, strict=True) if len(x) >= 2]
+    if len(xs_ok) < 2:
+        return None
+    lo, hi = max(x[0] for x, _ in xs_ok), min(x[-1] for x, _ in xs_ok)
+    if hi <= lo:
+        return None
+    grid = np.linspace(lo, hi, points)
+    stack = np.stack([np.interp(grid, x, y) for x, y in xs_ok])
+    return grid, stack.mean(axis=0), stack.min(axis=0), stack.max(axis=0)
+
+
 def learning_curves(runs: list[Run], out: Path) -> Path:
     """MPJPE-g, success and episode length against samples (top row) and wall-clock (bottom row).
+
+    A learner with several runs (seeds) is drawn as thin per-seed lines, their mean (thick) and a band from the lowest
+    to the highest seed, over the range of samples / minutes that every seed reached.
 
     Returns:
         The PNG written.
     """
     colors = _colors(runs)
+    groups: dict[str, list[Run]] = {}
+    for run in runs:
+        groups.setdefault(run.learner, []).append(run)
     fig, axes = plt.subplots(2, len(CURVES), figsize=(5 * len(CURVES), 7), squeeze=False)
     for col, (key, title) in enumerate(CURVES):
-        for run in runs:
-            samples, seconds, values = run.curve(key)
-            style = {"color": colors[run.learner], "marker": "o", "markersize": 3, "label": run.label}
-            axes[0, col].plot(samples, values, **style)
-            axes[1, col].plot([s / 60.0 for s in seconds], values, **style)
+        for learner, members in groups.items():
+            curves = [run.curve(key) for run in members]
+            several = len(members) > 1
+            for run, (samples, seconds, values) in zip(members, curves, strict=True):
+                style = {"color": colors[learner], "marker": "o", "markersize": 2 if several else 3,
+                         "linewidth": 0.8 if several else 1.5, "alpha": 0.45 if several else 1.0,
+                         "label": None if several else run.label}  # fmt: skip
+                axes[0, col].plot(samples, values, **style)
+                axes[1, col].plot([s / 60.0 for s in seconds], values, **style)
+            if not several:
+                continue
+            for row, xs in ((0, [c[0] for c in curves]), (1, [[s / 60.0 for s in c[1]] for c in curves])):
+                band = _band(xs, [c[2] for c in curves])
+                if band is None:
+                    continue
+                grid, mean, low, high = band
+                axes[row, col].plot(grid, mean, color=colors[learner], linewidth=2.2,
+                                    label=f"{learner}: mean of {len(members)} seeds (band: min-max)")  # fmt: skip
+                axes[row, col].fill_between(grid, low, high, color=colors[learner], alpha=0.18)
         axes[0, col].set_title(title)
         axes[0, col].set_xlabel("environment samples")
         axes[1, col].set_xlabel("training wall-clock (min)")

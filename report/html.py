@@ -1,7 +1,8 @@
 """A self-contained HTML page from the report's Markdown (the small subset the report writes).
 
 Images referenced as ``![alt](file.png)`` are embedded as base64 data URIs, so the page can be mailed or archived
-alone. Supported: ``#`` headings, pipe tables, fenced code, ``**bold**``, ```code```, ``- `` lists and paragraphs.
+alone; links ``[text](file)`` stay links (the videos, too large to embed). Supported: ``#`` headings, pipe tables,
+fenced code, ``**bold**``, ```code```, ``- `` lists and paragraphs.
 """
 
 from __future__ import annotations
@@ -31,12 +32,16 @@ def _inline(text: str, base: Path) -> str:
         data = base64.b64encode(path.read_bytes()).decode("ascii")
         return f'<img alt="{html.escape(m.group(1))}" src="data:image/png;base64,{data}">'
 
-    parts = re.split(r"(!\[[^\]]*\]\([^)]+\))", text)
+    parts = re.split(r"(!?\[[^\]]*\]\([^)]+\))", text)
     out = []
     for part in parts:
         m = re.fullmatch(r"!\[([^\]]*)\]\(([^)]+)\)", part)
         if m:
             out.append(image(m))
+            continue
+        m = re.fullmatch(r"\[([^\]]*)\]\(([^)]+)\)", part)
+        if m:  # a link to a file beside the page (the videos): not embedded
+            out.append(f'<a href="{html.escape(m.group(2))}">{html.escape(m.group(1))}</a>')
             continue
         s = html.escape(part)
         s = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", s)

@@ -135,21 +135,55 @@ def configs_block(runs: list[Run]) -> str:
     return "\n".join(parts)
 
 
-def spread_table(runs: list[Run], results: list[EvalResult]) -> str | None:
-    """Mean ± std over the runs of each learner (several seeds); None when every learner has one run."""
+def _groups(runs: list[Run]) -> dict[str, list[int]]:
+    """{learner: indices of its runs}, in first-seen order."""
     groups: dict[str, list[int]] = {}
     for i, run in enumerate(runs):
         groups.setdefault(run.learner, []).append(i)
+    return groups
+
+
+def mean_std(values: Sequence[float]) -> str:
+    """``mean ± std (n=N)`` with the sample standard deviation (ddof 1; 0 for one value); NaNs left out."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if len(v) == 0:
+        return "nan"
+    return f"{fmt(v.mean())} ± {fmt(v.std(ddof=1) if len(v) > 1 else 0.0)} (n={len(v)})"
+
+
+def spread_table(runs: list[Run], results: list[EvalResult], pushed: list[EvalResult] | None = None) -> str | None:
+    """Mean ± std over the runs of each learner (several seeds); None when every learner has one run.
+
+    With ``pushed`` (the same runs under the robustness protocol), its survival and MPJPE-g are rows too.
+    """
+    groups = _groups(runs)
+    if all(len(g) < 2 for g in groups.values()):
+        return None
+    rows = [[key, *(mean_std([results[i].overall[key] for i in idx]) for idx in groups.values())]
+            for key in M.METRIC_NAMES]  # fmt: skip
+    if pushed:
+        for key in ("survival", "mpjpe_g"):
+            rows.append([f"{key} under pushes",
+                         *(mean_std([pushed[i].overall[key] for i in idx]) for idx in groups.values())])  # fmt: skip
+    return table(["metric", *groups], rows)
+
+
+PER_CLIP_SPREAD = ("mpjpe_g", "mpjpe_l", "survival", "success")
+
+
+def per_clip_spread_table(runs: list[Run], results: list[EvalResult]) -> str | None:
+    """Per clip, each learner's mean ± std over its seeds of MPJPE-g / -l, survival and success; None when every
+    learner has one run."""
+    groups = _groups(runs)
     if all(len(g) < 2 for g in groups.values()):
         return None
     rows = []
-    for key in M.METRIC_NAMES:
-        row = [key]
-        for idx in groups.values():
-            v = np.array([results[i].overall[key] for i in idx])
-            row.append(f"{fmt(v.mean())} ± {fmt(v.std(ddof=1) if len(v) > 1 else 0.0)} (n={len(v)})")
-        rows.append(row)
-    return table(["metric", *groups], rows)
+    for c, clip in enumerate(results[0].clips):
+        for key in PER_CLIP_SPREAD:
+            rows.append([f"`{clip}`", key, *(mean_std([results[i].per_clip[key][c] for i in idx])
+                                              for idx in groups.values())])  # fmt: skip
+    return table(["clip", "metric", *groups], rows)
 
 
 def oracle_table(oracles: dict[str, tuple[EvalResult, dict[str, float]]], labels: list[str],

@@ -147,3 +147,17 @@ def test_filmstrip_or_reason(runs: dict[str, Path], tmp_path: Path) -> None:
         assert strips[0].stat().st_size > 1000
     else:
         assert "Filmstrips were not rendered" in md
+
+
+def test_video_per_method_and_clip_or_reason(runs: dict[str, Path], tmp_path: Path) -> None:
+    report = build_report([runs["supertrack"], runs["ppo"]], tmp_path / "r", max_frames=12, render_clips=0,
+                          pushes=False, video_clips=1)  # fmt: skip
+    md = report.files["markdown"].read_text()
+    videos = sorted(p.name for p in (tmp_path / "r").glob("video_*.mp4"))
+    if videos:
+        assert videos == ["video_ppo_ppo_walk.mp4", "video_supertrack_st_walk.mp4"]
+        assert "- [supertrack:st on walk](video_supertrack_st_walk.mp4)" in md
+        assert (tmp_path / "r" / videos[0]).read_bytes()[4:8] == b"ftyp"  # an MP4 container
+        assert '<a href="video_ppo_ppo_walk.mp4">' in report.files["html"].read_text()
+    else:
+        assert "Videos were not rendered" in md

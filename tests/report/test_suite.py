@@ -1,0 +1,92 @@
+"""benchmarks/compare_trackers.py as a suite: two tiny debug runs per learner, two at a time, then the report."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from report.tables import fmt
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _suite_module():
+    if "compare_trackers" in sys.modules:
+        return sys.modules["compare_trackers"]
+    spec = importlib.util.spec_from_file_location("compare_trackers", ROOT / "benchmarks" / "compare_trackers.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["compare_trackers"] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("suite")
+    args = ["--debug", "--seeds", "2", "--minutes", "0.03", "--parallel", "2", "--no-render", "--out", str(out)]
+    assert _suite_module().main(args) == 0
+    return out
+
+
+def _rows(md: str, heading: str) -> list[list[str]]:
+    block = md.split(heading, 1)[1].split("\n\n", 2)[1]
+    return [[c.strip() for c in line.strip("|").split("|")] for line in block.splitlines()[2:]]
+
+
+def _mean_std(values: list[float]) -> str:
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    return "nan" if len(v) == 0 else f"{fmt(v.mean())} ± {fmt(v.std(ddof=1))} (n={len(v)})"
+
+
+def test_suite_report_holds_the_evaluators_numbers_with_their_spread(suite: Path) -> None:
+    results = json.loads((suite / "report" / "results.json").read_text())
+    runs = {r["label"]: r for r in results["runs"]}
+    assert sorted(runs) == ["ppo:ppo-s0", "ppo:ppo-s1", "supertrack:supertrack-s0", "supertrack:supertrack-s1"]
+    # Two seeds of one learner are different runs.
+    assert runs["ppo:ppo-s0"]["overall"]["mpjpe_g"] != runs["ppo:ppo-s1"]["overall"]["mpjpe_g"]
+    md = (suite / "report" / "report.md").read_text()
+    overall = {row[0]: row[1:] for row in _rows(md, "### Spread: mean over clips")}
+    for col, learner in enumerate(("supertrack", "ppo")):
+        seeds = [runs[f"{learner}:{learner}-s{s}"] for s in (0, 1)]
+        for key in ("mpjpe_g", "mpjpe_l", "survival", "episode_len_ratio"):
+            assert overall[key][col] == _mean_std([r["overall"][key] for r in seeds])
+        for key in ("survival", "mpjpe_g"):
+            assert overall[f"{key} under pushes"][col] == _mean_std([r["pushed"]["overall"][key] for r in seeds])
+        per_clip = {(row[0], row[1]): row[2:] for row in _rows(md, "### Spread per clip")}
+        for c, clip in enumerate(seeds[0]["clips"]):
+            for key in ("mpjpe_g", "survival"):
+                assert per_clip[(f"`{clip}`", key)][col] == _mean_std([r["per_clip"][key][c] for r in seeds])
+    assert (suite / "report" / "learning_curves.png").stat().st_size > 1000
+    assert "## Robustness: pushes on the pelvis" in md
+
+
+def test_finished_runs_are_reused_not_retrained(suite: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    logs = {p: p.read_text() for p in (suite / "runs").glob("*/metrics.jsonl")}
+    assert len(logs) == 4
+    module = _suite_module()
+    args = ["--debug", "--seeds", "2", "--minutes", "0.03", "--parallel", "2", "--train-only", "--out", str(suite)]
+    assert module.main(args) == 0
+    assert capsys.readouterr().out.count("reused") == 4
+    assert {p: p.read_text() for p in logs} == logs
+    # Another budget is another command: the finished short runs are not taken for it (they resume instead).
+    assert not module.finished(suite / "runs" / "ppo-s0", minutes=10.0)
+
+
+def test_parallel_runs_get_one_core_each() -> None:
+    module = _suite_module()
+    args = module.build_parser().parse_args(["--suite", "locomotion", "--seeds", "2", "--parallel", "2", "--out", "x"])
+    jobs = module.jobs(args, Path("x"))
+    assert [(j.learner, j.seed) for j in jobs] == [("supertrack", 0), ("ppo", 0), ("supertrack", 1), ("ppo", 1)]
+    for job in jobs:
+        sets = [job.cmd[i + 1] for i, a in enumerate(job.cmd) if a == "--set"]
+        assert {"gym.threads=1", "train.torch_threads=1", "train.eval.threads=1"} <= set(sets)
+        motions = job.cmd[job.cmd.index("--motions") + 1 : job.cmd.index("--set")]
+        assert motions == ["walk", "jog", "run", "stealthy_walk", "zombie_walk"]
+    serial = module.jobs(module.build_parser().parse_args(["--suite", "walk", "--out", "x"]), Path("x"))
+    assert not any("gym.threads=1" in a for a in serial[0].cmd)
