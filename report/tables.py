@@ -136,11 +136,17 @@ def configs_block(runs: list[Run]) -> str:
 
 
 def _groups(runs: list[Run]) -> dict[str, list[int]]:
-    """{learner: indices of its runs}, in first-seen order."""
-    groups: dict[str, list[int]] = {}
+    """{learner: indices of its runs}, in first-seen order: the seeds of one method.
+
+    Runs of one learner trained on different motion sets are not seeds of each other (SAMCON runs one per clip): they
+    form one group per motion set, named ``learner (clips)``.
+    """
+    keys: dict[tuple[str, tuple[str, ...]], list[int]] = {}
     for i, run in enumerate(runs):
-        groups.setdefault(run.learner, []).append(i)
-    return groups
+        keys.setdefault((run.learner, tuple(run.motions)), []).append(i)
+    several = {learner for learner, _ in keys if sum(k[0] == learner for k in keys) > 1}
+    return {(f"{learner} ({', '.join(m)})" if learner in several else learner): idx
+            for (learner, m), idx in keys.items()}  # fmt: skip
 
 
 def mean_std(values: Sequence[float]) -> str:

@@ -90,3 +90,15 @@ def test_parallel_runs_get_one_core_each() -> None:
         assert motions == ["walk", "jog", "run", "stealthy_walk", "zombie_walk"]
     serial = module.jobs(module.build_parser().parse_args(["--suite", "walk", "--out", "x"]), Path("x"))
     assert not any("gym.threads=1" in a for a in serial[0].cmd)
+
+
+def test_runs_on_other_clips_are_not_seeds_of_each_other() -> None:
+    from report.runs import Run
+    from report.tables import _groups
+
+    def run(learner: str, motions: list[str], name: str) -> Run:
+        return Run(Path(name), f"{learner}:{name}", learner, {}, {"motions": motions}, [], Path("c"), 0, 0, 0.0)
+
+    runs = [run("supertrack", ["walk"], "a"), run("samcon", ["walk"], "b"), run("samcon", ["run"], "c"),
+            run("supertrack", ["walk"], "d")]  # fmt: skip
+    assert _groups(runs) == {"supertrack": [0, 3], "samcon (walk)": [1], "samcon (run)": [2]}
