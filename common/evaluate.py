@@ -126,13 +126,7 @@ def evaluate(
     """
     config = config or EvalConfig()
     nclip, k = library.num_clips, config.starts_per_clip
-    clips = np.repeat(np.arange(nclip), k)
-    # Start frames evenly spaced over the frames that leave at least one step to play.
-    playable = np.where(library.loop, np.ceil(library.duration / library.dt - 1e-9), library.num_frames - 1)
-    start_frame = np.floor(np.tile(np.arange(k) / k, nclip) * playable[clips]).astype(np.int64)
-    times = start_frame * library.dt
-    remaining = np.where(library.loop[clips], config.max_frames, library.num_frames[clips] - 1 - start_frame)
-    episode_max = np.minimum(config.max_frames, remaining)
+    clips, times, episode_max = episode_starts(library, config)
     gym = TrackingGym(
         GymConfig(num_envs=len(clips), threads=config.threads, seed=config.seed, physics=humanoid.physics,
                   termination=config.termination, rsi_lift=config.rsi_lift),
@@ -189,6 +183,21 @@ def evaluate(
         clips=list(library.names), per_clip=per_clip, overall=overall,
         episode_length=length.reshape(nclip, k), episode_max=episode_max.reshape(nclip, k), frames=played,
     )  # fmt: skip
+
+
+def episode_starts(library: MotionLibrary, config: EvalConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The protocol's episodes: ``starts_per_clip`` per clip, clip-major, at evenly spaced frames (the first at t = 0)
+    over the frames that leave at least one step to play.
+
+    Returns:
+        (clip, start time in s, steps the episode may play), each of shape (num_clips * starts_per_clip,).
+    """
+    nclip, k = library.num_clips, config.starts_per_clip
+    clips = np.repeat(np.arange(nclip), k)
+    playable = np.where(library.loop, np.ceil(library.duration / library.dt - 1e-9), library.num_frames - 1)
+    start_frame = np.floor(np.tile(np.arange(k) / k, nclip) * playable[clips]).astype(np.int64)
+    remaining = np.where(library.loop[clips], config.max_frames, library.num_frames[clips] - 1 - start_frame)
+    return clips, start_frame * library.dt, np.minimum(config.max_frames, remaining)
 
 
 def _with_rows(state: CharacterState, rows: np.ndarray, source: CharacterState) -> CharacterState:
