@@ -48,6 +48,9 @@ class PolicyLossWeights:
         root_pos: Per metre of world-space root position error (not in the paper, whose loss is local only and so
             lets the character drift; 0 turns it off).
         root_rot: Per radian of world-space root rotation error (components of log(q_pred * inv(q_ref))).
+        root_heading: Per radian of its vertical component alone, the turn about world +Z (not in the paper). Local()
+            cannot see heading, and root_rot gives it a third of its mean: on run (session 6) the root turned 3-5 deg
+            off within 16 frames and went 13 cm sideways by frame 30 (``benchmarks/root_drift.py``).
     """
 
     pos: float = 10.0
@@ -61,6 +64,7 @@ class PolicyLossWeights:
     offset_rate: float = 0.0
     root_pos: float = 0.0
     root_rot: float = 0.0
+    root_heading: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -78,7 +78,9 @@ def policy_loss(predicted: BodyState, kin: BodyState, offsets: Tensor, weights: 
     per_step = {k: _per_step_mean(sim_local[k] - kin_local[k]) for k in POLICY_TERMS}
     # World-space root terms (weights 0 in the paper's loss): the only terms that see drift.
     per_step["root_pos"] = _per_step_mean(predicted.pos[..., 0, :] - kin.pos[..., 0, :])
-    per_step["root_rot"] = _per_step_mean(rotation_error(predicted.rot[..., 0, :], kin.rot[..., 0, :]))
+    root_error = rotation_error(predicted.rot[..., 0, :], kin.rot[..., 0, :])
+    per_step["root_rot"] = _per_step_mean(root_error)
+    per_step["root_heading"] = _per_step_mean(root_error[..., 2:])  # the world-frame turn about +Z
     time_w = step_weights(predicted.pos.shape[1], step_decay, predicted.pos)
     terms = {k: v.mean() for k, v in per_step.items()}
     weighted = {k: (time_w * v).mean() for k, v in per_step.items()}

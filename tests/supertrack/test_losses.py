@@ -84,6 +84,26 @@ def test_root_terms_see_the_drift_that_the_local_terms_miss() -> None:
     assert metrics["losses/policy_root_pos"].item() == pytest.approx(0.7 / 3)
     assert metrics["losses/policy_root_rot"].item() == pytest.approx(0.2)
     assert loss.item() == pytest.approx(2.0 * 0.7 / 3 + 5.0 * 0.2)
+    assert metrics["losses/policy_root_heading"].item() == pytest.approx(0.6)  # all of it a turn about +z
+
+
+def test_root_heading_is_the_turn_about_vertical_alone() -> None:
+    kin = _still(bodies=3)
+    weights = PolicyLossWeights(pos=0, vel=0, rot=0, angvel=0, height=0, up=0, offset_l1=0, offset_l2=0,
+                                root_heading=10.0)  # fmt: skip
+    zeros = torch.zeros(1, 1, 12, 3, dtype=torch.float64)
+    tilted, turned = _still(bodies=3), _still(bodies=3)
+    tilted.rot, turned.rot = tilted.rot.clone(), turned.rot.clone()
+    # 0.4 rad about +x (a lean): no heading error. 0.4 rad about -z: a heading error of 0.4 rad.
+    tilted.rot[..., 0, :] = torch.tensor([math.cos(0.2), math.sin(0.2), 0.0, 0.0], dtype=torch.float64)
+    turned.rot[..., 0, :] = torch.tensor([math.cos(0.2), 0.0, 0.0, -math.sin(0.2)], dtype=torch.float64)
+    loss, metrics = policy_loss(tilted, kin, zeros, weights)
+    assert metrics["losses/policy_root_heading"].item() == pytest.approx(0.0, abs=1e-12)
+    assert metrics["losses/policy_root_rot"].item() == pytest.approx(0.4 / 3)
+    assert loss.item() == pytest.approx(0.0, abs=1e-12)
+    loss, metrics = policy_loss(turned, kin, zeros, weights)
+    assert metrics["losses/policy_root_heading"].item() == pytest.approx(0.4)
+    assert loss.item() == pytest.approx(10.0 * 0.4)
 
 
 def test_offset_rate_is_the_mean_frame_to_frame_change() -> None:
