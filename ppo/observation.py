@@ -21,8 +21,9 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 
 from common.character.humanoid import Humanoid
+from common.character.state import CharacterState
 from common.maths.rotations import quat_conj, quat_from_yaw, quat_mul, quat_rotate, quat_to_two_axis, quat_yaw
-from common.motion.library import CharacterState, MotionLibrary
+from common.motion.library import MotionLibrary
 from common.sim.features import OBSERVATION_KEYS, tracking_observation
 from common.sim.gym import StepResult
 from ppo.config import ObservationConfig

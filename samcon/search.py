@@ -26,7 +26,8 @@ import numpy as np
 
 from common.character.humanoid import Humanoid
 from common.character.kinematics import ForwardKinematics
-from common.motion.library import CharacterState, MotionLibrary
+from common.character.state import CharacterState
+from common.motion.library import MotionLibrary
 from common.sim.gym import GymConfig, TrackingGym
 from common.sim.sim import BatchedSim
 from samcon.config import CostConfig, SearchConfig

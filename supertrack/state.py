@@ -14,8 +14,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from common.character.state import CharacterState
 from common.maths import torch_rotations as R
-from common.motion.library import CharacterState
 from common.sim.features import local_vector
 
 # (BodyState field, CharacterState field, values per body): the packed per-body layout.

@@ -1,1 +1,1 @@
-"""The character: the DeepMimic humanoid in MuJoCo (its MJCF in ``assets/``) and its kinematics."""
+"""The character: the DeepMimic humanoid in MuJoCo (its MJCF in ``assets/``), its kinematics and its state."""

@@ -14,7 +14,7 @@ import numpy as np
 from mujoco import rollout
 
 from common.character.humanoid import Humanoid
-from common.motion.library import CharacterState
+from common.character.state import CharacterState
 
 _SENSORS = (("framepos", 3), ("framequat", 4), ("framelinvel", 3), ("frameangvel", 3))
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS

@@ -15,7 +15,8 @@ import h5py
 import numpy as np
 
 from common.character.humanoid import Humanoid
-from common.motion.library import FRAME_FIELDS, CharacterState, ClipFrames, MotionLibrary
+from common.character.state import FRAME_FIELDS, CharacterState
+from common.motion.library import ClipFrames, MotionLibrary
 from common.motion.motion import (
     CLIP_PACK_FORMAT,
     MAX_ROOT_DISTANCE,

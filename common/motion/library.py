@@ -14,11 +14,12 @@ that pose and velocities stay continuous across the loop point instead of jumpin
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from common.character.humanoid import Humanoid
+from common.character.state import FRAME_FIELDS, CharacterState
 from common.maths.rotations import (
     angular_velocity,
     quat_conj,
@@ -36,33 +37,6 @@ from common.maths.rotations import (
     quat_yaw,
 )
 from common.motion.motion import Clip
-
-
-@dataclass
-class CharacterState:
-    """The state of N characters (or T frames), simulated or reference. Leading shape: (...,).
-
-    Attributes:
-        qpos: Model generalised positions. Shape: (..., nq).
-        qvel: Model generalised velocities (root angular velocity in the root frame, as MuJoCo). Shape: (..., nv).
-        body_pos: Body frame origins, world. Shape: (..., B, 3).
-        body_rot: Body rotations, world, (w, x, y, z). Shape: (..., B, 4).
-        body_linvel: Linear velocity of each body frame origin, world. Shape: (..., B, 3).
-        body_angvel: Angular velocity of each body, world. Shape: (..., B, 3).
-    """
-
-    qpos: np.ndarray
-    qvel: np.ndarray
-    body_pos: np.ndarray
-    body_rot: np.ndarray
-    body_linvel: np.ndarray
-    body_angvel: np.ndarray
-
-    def __getitem__(self, idx: object) -> CharacterState:
-        return CharacterState(**{f.name: getattr(self, f.name)[idx] for f in fields(self)})
-
-
-FRAME_FIELDS = tuple(f.name for f in fields(CharacterState))
 
 
 @dataclass(frozen=True)

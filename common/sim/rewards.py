@@ -20,8 +20,8 @@ from typing import Literal
 import numpy as np
 
 from common.character.humanoid import Humanoid
+from common.character.state import CharacterState
 from common.maths.rotations import quat_geodesic_angle
-from common.motion.library import CharacterState
 from common.sim.tracking_rewards import REWARD_TERMS, TERM_FUNCTIONS, RewardModel
 
 

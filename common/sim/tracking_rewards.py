@@ -31,8 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.character.humanoid import Humanoid
+from common.character.state import CharacterState
 from common.maths.rotations import cross, quat_conj, quat_mul, quat_rotate, quat_yaw
-from common.motion.library import CharacterState
 
 # DeepMimic humanoid3d DiffWeight per joint (the joint's child body); hands have no joint (weight 0).
 DEEPMIMIC_BODY_WEIGHTS = {

@@ -34,7 +34,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from common.character.humanoid import Humanoid
-from common.motion.library import CharacterState, MotionLibrary
+from common.character.state import CharacterState
+from common.motion.library import MotionLibrary
 from common.sim.gym import GymConfig, StepResult, TrackingGym
 from common.sim.pushes import PushConfig, push_schedule
 from common.sim.rewards import TerminationConfig

@@ -10,8 +10,8 @@ import pytest
 
 import common.train.evaluate as E
 from common.character.humanoid import Humanoid
+from common.character.state import CharacterState
 from common.motion.dataset import load_motions
-from common.motion.library import CharacterState
 from common.train.evaluate import EvalConfig, evaluate, reference_policy
 from common.train.metrics import METRIC_NAMES
 

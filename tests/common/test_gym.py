@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from common.character.humanoid import Humanoid
+from common.character.state import CharacterState
 from common.maths.rotations import quat_from_axis_angle, quat_mul
 from common.motion.dataset import load_motions
-from common.motion.library import CharacterState, MotionLibrary
+from common.motion.library import MotionLibrary
 from common.sim.buffer import CyclicBuffer
 from common.sim.gym import GymConfig, TrackingGym
 from common.sim.rewards import RewardConfig, TerminationConfig, TrackingReward, termination

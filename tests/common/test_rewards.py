@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from common.character.humanoid import Humanoid
+from common.character.state import CharacterState
 from common.maths.rotations import quat_from_axis_angle, quat_mul
 from common.motion.dataset import load_motions
-from common.motion.library import CharacterState
 from common.sim.rewards import DEFAULT_SCALES, RewardConfig, TrackingReward
 from common.sim.tracking_rewards import REWARD_TERMS, TERM_FUNCTIONS, RewardModel
 from common.train.config import ConfigError, from_dict

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from common.character.humanoid import BodyGeometry, Humanoid
+from common.character.state import CharacterState
 from common.motion.dataset import load_motions
-from common.motion.library import CharacterState, MotionLibrary
+from common.motion.library import MotionLibrary
 from common.sim.rewards import TerminationConfig, termination
 from common.train.config import load_config
 from ppo.config import PPOTrackerConfig

@@ -8,8 +8,8 @@ import numpy as np
 import torch
 
 from common.character.humanoid import Humanoid, joint_rotations_to_hinges
+from common.character.state import CharacterState
 from common.maths.rotations import quat_from_axis_angle
-from common.motion.library import CharacterState
 from supertrack.state import (
     STATE_LAYOUT,
     BodyState,
