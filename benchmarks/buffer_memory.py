@@ -16,7 +16,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from common.buffer import CyclicBuffer  # noqa: E402
+from common.sim.buffer import CyclicBuffer  # noqa: E402
 
 CAPACITY = 150_000
 NUM_ENVS = 256

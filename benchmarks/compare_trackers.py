@@ -2,7 +2,7 @@
 
 Every (seed, learner) run trains in its own process (a fresh interpreter: nothing shared between methods) for the
 same training wall-clock (``--minutes``; evaluation and SuperTrack's compile warm-up stay off that clock, as in
-``common.training``). Then ``compare-trackers`` re-evaluates every final checkpoint on one protocol and writes the
+``common.train.training``). Then ``compare-trackers`` re-evaluates every final checkpoint on one protocol and writes the
 report: learning curves with the spread over seeds, per-clip tables as mean ± std over seeds, samples and minutes to
 each threshold per seed, the world-model diagnostics, the robustness table and an MP4 per method and clip.
 
@@ -36,7 +36,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from common.logs import read_metrics  # noqa: E402
+from common.train.logs import read_metrics  # noqa: E402
 from report.compare import main as compare_main  # noqa: E402
 
 LEARNERS = {"supertrack": "supertrack.train", "ppo": "ppo.train"}

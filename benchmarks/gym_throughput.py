@@ -17,10 +17,10 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from common.gym import GymConfig, TrackingGym
-from common.humanoid import Humanoid
-from common.motion_dataset import load_motions
-from common.rewards import TerminationConfig
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.sim.gym import GymConfig, TrackingGym
+from common.sim.rewards import TerminationConfig
 
 
 def raw_block(humanoid: Humanoid, state0: np.ndarray, ctrl: np.ndarray, steps: int, pool: rollout.Rollout,

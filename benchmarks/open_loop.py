@@ -15,10 +15,10 @@ from __future__ import annotations
 import argparse
 import functools
 
-from common.evaluate import EvalConfig, evaluate, reference_policy
-from common.humanoid import Humanoid
-from common.motion_dataset import load_motions
-from common.rewards import TerminationConfig
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.sim.rewards import TerminationConfig
+from common.train.evaluate import EvalConfig, evaluate, reference_policy
 
 
 def main() -> None:

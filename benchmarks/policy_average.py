@@ -19,11 +19,11 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from common.checkpoint import load_checkpoint_file
-from common.evaluate import evaluate
-from common.humanoid import Humanoid
-from common.motion_dataset import load_motions
-from common.run import numbered_checkpoints
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.train.checkpoint import load_checkpoint_file
+from common.train.evaluate import evaluate
+from common.train.run import numbered_checkpoints
 from report.runs import load_run
 from supertrack.export import load_eval_policy
 

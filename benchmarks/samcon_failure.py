@@ -15,10 +15,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from common.config import load_config
-from common.humanoid import Humanoid
-from common.kinematics import ForwardKinematics
-from common.motion_dataset import load_motions
+from common.character.humanoid import Humanoid
+from common.character.kinematics import ForwardKinematics
+from common.motion.dataset import load_motions
+from common.train.config import load_config
 from samcon import store
 from samcon.config import SamconConfig
 from samcon.cost import COST_TERMS

@@ -26,8 +26,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from common.humanoid import Humanoid, PhysicsConfig  # noqa: E402
-from common.motion_dataset import load_motions  # noqa: E402
+from common.character.humanoid import Humanoid, PhysicsConfig  # noqa: E402
+from common.motion.dataset import load_motions  # noqa: E402
 
 HEAD_RULE_M = 0.25
 SETTINGS = {  # name -> (armature kg m^2, substeps, integrator or None for the MJCF's)

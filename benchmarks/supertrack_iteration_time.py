@@ -28,9 +28,9 @@ import time
 import numpy as np
 import torch
 
-from common.config import load_config
-from common.humanoid import Humanoid
-from common.motion_dataset import load_motions
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.train.config import load_config
 from supertrack.config import SuperTrackConfig
 from supertrack.learner import SuperTrackLearner
 

@@ -23,14 +23,14 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from common.checkpoint import CheckpointError  # noqa: E402
-from common.config import load_config  # noqa: E402
-from common.evaluate import reference_policy  # noqa: E402
-from common.gym import TrackingGym  # noqa: E402
-from common.humanoid import Humanoid  # noqa: E402
-from common.motion_dataset import load_motions  # noqa: E402
-from common.run import read_checkpoint  # noqa: E402
-from common.training import gym_config  # noqa: E402
+from common.character.humanoid import Humanoid  # noqa: E402
+from common.motion.dataset import load_motions  # noqa: E402
+from common.sim.gym import TrackingGym  # noqa: E402
+from common.train.checkpoint import CheckpointError  # noqa: E402
+from common.train.config import load_config  # noqa: E402
+from common.train.evaluate import reference_policy  # noqa: E402
+from common.train.run import read_checkpoint  # noqa: E402
+from common.train.training import gym_config  # noqa: E402
 from supertrack.config import SuperTrackConfig  # noqa: E402
 from supertrack.learner import SuperTrackLearner  # noqa: E402
 from supertrack.rollout import world_model_rollout  # noqa: E402

@@ -1,4 +1,4 @@
-"""The ``train-ppo`` config: frozen dataclasses loaded from YAML by :mod:`common.config` (unknown keys rejected).
+"""The ``train-ppo`` config: frozen dataclasses loaded from YAML by :mod:`common.train.config` (unknown keys rejected).
 
 Sections: ``train`` (run length, evaluation; shared with SuperTrack), ``gym`` (characters, termination, reward),
 ``observation`` (what the networks see), ``network`` (actor and critic), ``ppo`` (rollouts and the update),
@@ -11,9 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-from common.gym import GymConfig
-from common.rewards import RewardConfig, TerminationConfig
-from common.training import TrainConfig
+from common.sim.gym import GymConfig
+from common.sim.rewards import RewardConfig, TerminationConfig
+from common.train.training import TrainConfig
 
 
 def _ppo_gym() -> GymConfig:

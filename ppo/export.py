@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from common.evaluate import Policy
-from common.gym import StepResult
-from common.humanoid import Humanoid
-from common.motion_library import MotionLibrary
-from common.run import load_run_checkpoint
+from common.character.humanoid import Humanoid
+from common.motion.library import MotionLibrary
+from common.sim.gym import StepResult
+from common.train.evaluate import Policy
+from common.train.run import load_run_checkpoint
 from ppo.config import PPOTrackerConfig
 from ppo.networks import ActorCritic
 from ppo.normalizer import RunningNormalizer

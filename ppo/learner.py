@@ -1,4 +1,4 @@
-"""The PPO tracker as a :class:`common.training.Learner`: one iteration = collect() a rollout, update() on it.
+"""The PPO tracker as a :class:`common.train.training.Learner`: one iteration = collect() a rollout, update() on it.
 
 collect(): ``rollout_length`` gym steps of N characters. Each step observes the state (:mod:`ppo.observation`),
 updates the normaliser's statistics, samples a ~ N(mu, sigma) and sends PD targets = reference hinge angles of the
@@ -18,12 +18,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from common.buffer import CyclicBuffer
-from common.evaluate import Policy
-from common.gym import StepResult, TrackingGym
-from common.humanoid import Humanoid
-from common.motion_library import MotionLibrary
-from common.training import NanGuard, gym_config
+from common.character.humanoid import Humanoid
+from common.motion.library import MotionLibrary
+from common.sim.buffer import CyclicBuffer
+from common.sim.gym import StepResult, TrackingGym
+from common.train.evaluate import Policy
+from common.train.training import NanGuard, gym_config
 from ppo.config import PPOTrackerConfig
 from ppo.gae import gae
 from ppo.losses import ppo_loss

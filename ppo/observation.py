@@ -10,7 +10,7 @@ under the root on the ground), so that a shift along the ground or a turn about 
   ``ref{k}_dof_pos``: hinge angles sim - ref. The first offset also has ``ref{k}_vel``, ``ref{k}_angvel`` and
   ``ref{k}_dof_vel`` (sim - ref); later frames' velocities follow from the spacing of their positions.
 
-``local`` (the previous default): :func:`common.features.tracking_observation` (Local() of both characters, the
+``local`` (the previous default): :func:`common.sim.features.tracking_observation` (Local() of both characters, the
 reference root in the simulated root's frame, the clip phase).
 """
 
@@ -20,11 +20,12 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from common.features import OBSERVATION_KEYS, tracking_observation
-from common.gym import StepResult
-from common.humanoid import Humanoid
-from common.motion_library import CharacterState, MotionLibrary
-from common.rotations import quat_conj, quat_from_yaw, quat_mul, quat_rotate, quat_to_two_axis, quat_yaw
+from common.character.humanoid import Humanoid
+from common.character.state import CharacterState
+from common.maths.rotations import quat_conj, quat_from_yaw, quat_mul, quat_rotate, quat_to_two_axis, quat_yaw
+from common.motion.library import MotionLibrary
+from common.sim.features import OBSERVATION_KEYS, tracking_observation
+from common.sim.gym import StepResult
 from ppo.config import ObservationConfig
 
 

@@ -1,7 +1,7 @@
 """``train-ppo``: trains the PPO motion tracker (DeepMimic / PARC baseline) with the shared trainer.
 
 The run directory, progress display, metrics (JSON lines + TensorBoard), atomic checkpoints, ``--resume`` and the
-periodic evaluation are those of ``train-supertrack`` (:mod:`common.training`).
+periodic evaluation are those of ``train-supertrack`` (:mod:`common.train.training`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from types import FrameType
 
 import numpy as np
 
-from common.training import Trainer, add_common_arguments, compat_meta, setup
+from common.train.training import Trainer, add_common_arguments, compat_meta, setup
 from ppo.config import PPOTrackerConfig
 from ppo.learner import PPOLearner
 

@@ -1,6 +1,6 @@
 """``compare-trackers``: one comparison report of SuperTrack and PPO runs, re-evaluated on one protocol.
 
-Every run's checkpoint is re-evaluated with the shared evaluator (:func:`common.evaluate.evaluate`) on the same
+Every run's checkpoint is re-evaluated with the shared evaluator (:func:`common.train.evaluate.evaluate`) on the same
 motions, start frames and seed, rather than trusting the numbers the runs logged; learning curves, thresholds and
 world-model diagnostics come from the runs' ``metrics.jsonl``. Writes ``report.md``, ``report.html`` (self-contained),
 ``results.json`` (full-precision numbers) and the PNG figures into ``--out``.
@@ -23,14 +23,14 @@ from typing import Any
 
 import torch
 
-from common import render
-from common.config import ConfigError
-from common.evaluate import EvalConfig, EvalResult, Policy, evaluate
-from common.humanoid import Humanoid
-from common.motion import MotionFormatError
-from common.motion_dataset import load_motions
-from common.motion_library import MotionLibrary
-from common.pushes import PushConfig
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.motion.library import MotionLibrary
+from common.motion.motion import MotionFormatError
+from common.sim.pushes import PushConfig
+from common.train import render
+from common.train.config import ConfigError
+from common.train.evaluate import EvalConfig, EvalResult, Policy, evaluate
 from report import figures, tables
 from report.html import markdown_to_html
 from report.runs import ReportError, Run, export_module, load_run, unique_labels
@@ -85,7 +85,7 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
         max_frames: Steps per evaluation episode; None: the first run's protocol.
         render_clips: Clips per run drawn as filmstrips.
         do_render: False skips the filmstrips and videos (no GL probing at all).
-        pushes: Also re-evaluate every run under the robustness protocol (:class:`common.pushes.PushConfig`).
+        pushes: Also re-evaluate every run under the robustness protocol (:class:`common.sim.pushes.PushConfig`).
         video_clips: Clips per method rendered as MP4 videos (the first run of each learner, i.e. its lowest seed);
             None: every clip; 0: none.
 
@@ -208,7 +208,7 @@ def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]],
     labels = [r.label for r in report.runs]
     lines = ["# Tracker comparison", ""]
     lines += [f"- **Note:** {n}" for n in report.notes]
-    lines += ["", f"Every run re-evaluated by `common.evaluate` on motions `{', '.join(report.motions)}` "
+    lines += ["", f"Every run re-evaluated by `common.train.evaluate` on motions `{', '.join(report.motions)}` "
               f"(clips: {', '.join(report.results[0].clips)}), {p.starts_per_clip} start(s) per clip, "
               f"{p.max_frames} frames per episode, seed {p.seed}. Best value of each row in bold.", ""]  # fmt: skip
     lines += [PROTOCOL if p.full_horizon else "The runs are scored until their first failure (the earlier "

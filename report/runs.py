@@ -1,7 +1,7 @@
 """Reading training run directories for the comparison report.
 
-A run directory (written by :mod:`common.training`) holds ``config.yaml``, ``run_info.json``, ``metrics.jsonl`` and
-``checkpoints/``. This module reads them without importing any learner: the learner-specific policy loading lives in
+A run directory (written by :mod:`common.train.training`) holds ``config.yaml``, ``run_info.json``, ``metrics.jsonl``
+and ``checkpoints/``. This module reads them without importing any learner: the learner-specific policy loading lives in
 ``<learner>/export.py`` and is reached through :func:`export_module`.
 """
 
@@ -15,10 +15,10 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from common.config import ConfigError, from_dict, parse_yaml
-from common.evaluate import EvalConfig
-from common.humanoid import PhysicsConfig
-from common.logs import read_metrics
+from common.character.humanoid import PhysicsConfig
+from common.train.config import ConfigError, from_dict, parse_yaml
+from common.train.evaluate import EvalConfig
+from common.train.logs import read_metrics
 
 
 class ReportError(ValueError):
@@ -80,8 +80,8 @@ class Run:
 def _checkpoint(path: Path, iteration: int | None) -> tuple[Path, dict[str, Any]]:
     """The checkpoint of ``iteration`` (None: the newest intact one) and its state, read without running anything."""
     # Imported here (they import torch): reading curves alone stays cheap.
-    from common.checkpoint import CheckpointError, load_checkpoint_file, recorded_digest
-    from common.run import load_newest_checkpoint, newest_checkpoint, numbered_checkpoints
+    from common.train.checkpoint import CheckpointError, load_checkpoint_file, recorded_digest
+    from common.train.run import load_newest_checkpoint, newest_checkpoint, numbered_checkpoints
 
     numbered = dict(numbered_checkpoints(path / "checkpoints"))
     if iteration is None and newest_checkpoint(path / "checkpoints") is None:

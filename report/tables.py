@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import metrics as M
-from common.evaluate import EvalResult
+from common.train import metrics as M
+from common.train.evaluate import EvalResult
 from report.figures import world_model_keys
 from report.runs import Run
 

@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from common import render
-from common.config import ConfigError
-from common.humanoid import Humanoid
-from common.motion import MotionFormatError
-from common.motion_dataset import load_motions
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.motion.motion import MotionFormatError
+from common.train import render
+from common.train.config import ConfigError
 from report.runs import ReportError, export_module, load_run
 
 

@@ -1,4 +1,4 @@
-"""The config of ``track-samcon``: frozen dataclasses loaded with :func:`common.config.load_config`.
+"""The config of ``track-samcon``: frozen dataclasses loaded with :func:`common.train.config.load_config`.
 
 The section names ``train`` and ``gym`` follow the learners' configs so that the report reads a SAMCON run's
 motions, evaluation protocol and physics the same way (:mod:`report.runs`).
@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-from common.evaluate import EvalConfig
-from common.humanoid import PhysicsConfig
+from common.character.humanoid import PhysicsConfig
+from common.train.evaluate import EvalConfig
 
 
 @dataclass(frozen=True)
@@ -18,7 +18,7 @@ class TrackConfig:
     """What to track and how the result is judged.
 
     Attributes:
-        motions: Motion specs (see :func:`common.motion_dataset.resolve_clips`).
+        motions: Motion specs (see :func:`common.motion.dataset.resolve_clips`).
         seed: Seed of the sampling.
         max_frames: Control steps tracked from each clip's start: loop clips this many, one-shot clips to their last
             frame if sooner (the shared evaluator's horizon).

@@ -1,6 +1,6 @@
 """SAMCON's tracking cost and the low-dimensional state its linear feedback policies read.
 
-Both are pure functions of simulated and reference :class:`~common.motion_library.CharacterState` batches (leading
+Both are pure functions of simulated and reference :class:`~common.character.state.CharacterState` batches (leading
 shape (N,)). Shape letters: N characters, B bodies, D feedback features.
 """
 
@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.humanoid import Humanoid
-from common.motion_library import CharacterState
-from common.rotations import quat_geodesic_angle, quat_rotate_inv, quat_split_heading, quat_to_rotvec
+from common.character.humanoid import Humanoid
+from common.character.state import CharacterState
+from common.maths.rotations import quat_geodesic_angle, quat_rotate_inv, quat_split_heading, quat_to_rotvec
 from samcon.config import CostConfig
 
 COST_TERMS = ("pose", "root_pos", "root_rot", "end_effector", "balance", "root_vel")

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from common.evaluate import Policy
-from common.humanoid import Humanoid
-from common.motion_library import MotionLibrary
+from common.character.humanoid import Humanoid
+from common.motion.library import MotionLibrary
+from common.train.evaluate import Policy
 from samcon import store
 from samcon.feedback import FeedbackPolicy, open_loop_policy
 

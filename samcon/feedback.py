@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.evaluate import Policy
-from common.gym import StepResult
-from common.humanoid import Humanoid
-from common.motion_library import MotionLibrary
+from common.character.humanoid import Humanoid
+from common.motion.library import MotionLibrary
+from common.sim.gym import StepResult
+from common.train.evaluate import Policy
 from samcon.cost import feedback_features
 
 

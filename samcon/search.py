@@ -11,7 +11,7 @@ scored by the tracking cost averaged over the segment's frames. After each of ``
 rounds are kept. At the end, the lowest-cost kept sample is traced back through its parents: the open-loop
 trajectory.
 
-The physics is :class:`common.sim.BatchedSim`, stepped one control step per rollout like the gym, so that the
+The physics is :class:`common.sim.sim.BatchedSim`, stepped one control step per rollout like the gym, so that the
 trajectory replays bit-exactly in the shared evaluator from the same start state (MuJoCo's solver warm start is
 reset at every rollout call, so a segment simulated as one long rollout would not).
 """
@@ -24,11 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.gym import GymConfig, TrackingGym
-from common.humanoid import Humanoid
-from common.kinematics import ForwardKinematics
-from common.motion_library import CharacterState, MotionLibrary
-from common.sim import BatchedSim
+from common.character.humanoid import Humanoid
+from common.character.kinematics import ForwardKinematics
+from common.character.state import CharacterState
+from common.motion.library import MotionLibrary
+from common.sim.gym import GymConfig, TrackingGym
+from common.sim.sim import BatchedSim
 from samcon.config import CostConfig, SearchConfig
 from samcon.cost import COST_TERMS, feedback_features, tracking_cost
 

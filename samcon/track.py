@@ -25,13 +25,13 @@ from typing import Any
 
 import numpy as np
 
-from common.config import ConfigError, atomic_output, load_config
-from common.evaluate import EvalResult, evaluate
-from common.humanoid import Humanoid
-from common.motion import MotionFormatError
-from common.motion_dataset import load_motions
-from common.motion_library import MotionLibrary
-from common.run import RunDir, RunDirError
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.motion.library import MotionLibrary
+from common.motion.motion import MotionFormatError
+from common.train.config import ConfigError, atomic_output, load_config
+from common.train.evaluate import EvalResult, evaluate
+from common.train.run import RunDir, RunDirError
 from samcon import store
 from samcon.config import FeedbackConfig, SamconConfig
 from samcon.cost import COST_TERMS

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from common.gym import StepResult
-from common.humanoid import Humanoid, hinges_to_joint_rotations, joint_rotations_to_hinges
+from common.character.humanoid import Humanoid, hinges_to_joint_rotations, joint_rotations_to_hinges
+from common.sim.gym import StepResult
 from supertrack.models import Policy
 from supertrack.state import BodyState, pack_character_state, target_rotations
 
@@ -72,7 +72,7 @@ class Actor:
 
 
 class GymActor:
-    """SuperTrack's :class:`common.collect.FrameActor`: a CPU copy of the policy plus noise, and its frame fields.
+    """SuperTrack's :class:`common.sim.collect.FrameActor`: a CPU copy of the policy plus noise, and its frame fields.
 
     The frame that starts at gym state i holds S_i (``sim``), K_{i+1} (``kin_next``), k_{i+1}
     (``kin_next_joint_rot``) and the applied targets T_i (``target_rot``): see :mod:`supertrack.learner`.

@@ -9,8 +9,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from common.gym import GymConfig
-from common.training import TrainConfig
+from common.sim.gym import GymConfig
+from common.train.training import TrainConfig
 
 
 @dataclass(frozen=True)
@@ -127,8 +127,9 @@ class PolicyConfig:
         step_decay: Weight decay^i of rollout step i in the tracking loss (ControlVAE: 0.95; the paper: 1, a plain
             mean), so that the later steps, where W's error has compounded, pull less.
         average_decay: Decay of an exponential moving average of the policy's weights (Polyak averaging,
-            :class:`common.averaging.WeightAverage`) that evaluation, the report and export use instead of the live
-            weights; the gym still acts with the live ones. 0 (the paper): no average, the live weights are evaluated.
+            :class:`common.train.averaging.WeightAverage`) that evaluation, the report and export use instead of the
+            live weights; the gym still acts with the live ones. 0 (the paper): no average, the live weights are
+            evaluated.
     """
 
     hidden: tuple[int, ...] = (1024, 1024, 1024, 1024, 1024)
@@ -193,7 +194,7 @@ class CollectConfig:
         warmup_steps: Gym control steps before the first update (at least both windows).
         clip_weights: Sampling weight of a clip when an episode starts, by clip name (clips not named: 1; empty:
             uniform). The paper oversampled walk 10x in its locomotion set: ``{walk: 10}``.
-        processes: Collector processes beside the learner (:mod:`common.collect`), each stepping about
+        processes: Collector processes beside the learner (:mod:`common.sim.collect`), each stepping about
             gym.num_envs / processes characters with a copy of the policy; iteration k + 1's frames are collected
             with the weights update k starts from while update k runs (deterministic: one seed, one result). 0: the
             gym steps in the learner's process between updates, with the newest weights.

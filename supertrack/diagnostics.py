@@ -11,8 +11,8 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from common import torch_rotations as R
-from common.buffer import CyclicBuffer
+from common.maths import torch_rotations as R
+from common.sim.buffer import CyclicBuffer
 from supertrack.models import WorldModel
 from supertrack.rollout import world_model_rollout
 from supertrack.state import BodyState

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from common.evaluate import Policy as EvalPolicy
-from common.humanoid import Humanoid
-from common.motion_library import MotionLibrary
-from common.run import load_run_checkpoint
+from common.character.humanoid import Humanoid
+from common.motion.library import MotionLibrary
+from common.train.evaluate import Policy as EvalPolicy
+from common.train.run import load_run_checkpoint
 from supertrack.actor import Actor
 from supertrack.config import SuperTrackConfig
 from supertrack.models import Policy

@@ -1,8 +1,8 @@
 """The SuperTrack learner (Fussell et al. 2021): gym -> cyclic buffer -> one W step and one policy step.
 
-Implements :class:`common.training.Learner`; :class:`common.training.Trainer` drives it. Each iteration the gym's
-characters act with the policy plus noise in the real simulator and a block of their frames goes into the buffer
-(:mod:`common.collect`: in this process with the newest weights, or with ``collect.processes >= 1`` by worker
+Implements :class:`common.train.training.Learner`; :class:`common.train.training.Trainer` drives it. Each iteration the
+gym's characters act with the policy plus noise in the real simulator and a block of their frames goes into the buffer
+(:mod:`common.sim.collect`: in this process with the newest weights, or with ``collect.processes >= 1`` by worker
 processes that collect the next block with the weights of the running update's start); then W takes one step on
 8-frame windows (Algorithm 1) and the policy one step on 32-frame windows rolled out through W (Algorithm 2).
 
@@ -27,13 +27,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from common.averaging import WeightAverage
-from common.buffer import CyclicBuffer
-from common.collect import Block, CollectorSpec, make_collector
-from common.evaluate import Policy as EvalPolicy
-from common.humanoid import Humanoid
-from common.motion_library import MotionLibrary
-from common.training import NanGuard, gym_config
+from common.character.humanoid import Humanoid
+from common.motion.library import MotionLibrary
+from common.sim.buffer import CyclicBuffer
+from common.sim.collect import Block, CollectorSpec, make_collector
+from common.train.averaging import WeightAverage
+from common.train.evaluate import Policy as EvalPolicy
+from common.train.training import NanGuard, gym_config
 from supertrack.actor import Actor, GymActor
 from supertrack.config import SuperTrackConfig
 from supertrack.diagnostics import open_loop_errors
@@ -212,8 +212,8 @@ class SuperTrackLearner:
         self._new_guards()
 
     def _upgrade(self, state: dict[str, Any]) -> dict[str, Any]:
-        """A state written before :mod:`common.collect` (a ``gym`` entry, frames without ``collected_at``) in today's
-        form, for the tools that read old runs (e.g. ``benchmarks/world_model_bodies.py``): the gym becomes the
+        """A state written before :mod:`common.sim.collect` (a ``gym`` entry, frames without ``collected_at``) in
+        today's form, for the tools that read old runs (e.g. ``benchmarks/world_model_bodies.py``): the gym becomes the
         in-process collector's, with this collector's noise generator (the noise came from the learner's then), and
         the frames count as collected before the first update."""
         if "collector" in state or "gym" not in state:

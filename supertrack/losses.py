@@ -9,8 +9,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from common import torch_rotations as R
-from common.features import local_features
+from common.maths import torch_rotations as R
+from common.sim.features import local_features
 from supertrack.config import PolicyLossWeights, WorldLossWeights
 from supertrack.state import BodyState
 

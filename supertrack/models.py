@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
-from common import torch_rotations as R
+from common.maths import torch_rotations as R
 from supertrack.normalizer import Normalizer
 from supertrack.state import BodyState, integrate, target_features
 

@@ -10,10 +10,10 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from common.features import local_vector
-from common.humanoid import Humanoid, hinges_to_joint_rotations
-from common.motion_library import MotionLibrary
-from common.rotations import quat_rotate_inv, quat_to_two_axis
+from common.character.humanoid import Humanoid, hinges_to_joint_rotations
+from common.maths.rotations import quat_rotate_inv, quat_to_two_axis
+from common.motion.library import MotionLibrary
+from common.sim.features import local_vector
 
 
 class Normalizer(nn.Module):

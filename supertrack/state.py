@@ -14,9 +14,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from common import torch_rotations as R
-from common.features import local_vector
-from common.motion_library import CharacterState
+from common.character.state import CharacterState
+from common.maths import torch_rotations as R
+from common.sim.features import local_vector
 
 # (BodyState field, CharacterState field, values per body): the packed per-body layout.
 STATE_LAYOUT: tuple[tuple[str, str, int], ...] = (
@@ -71,7 +71,7 @@ class BodyState:
         )
 
     def local(self) -> Tensor:
-        """SuperTrack's flat Local() features (common.features layout). Shape: (..., 16 N + 3)."""
+        """SuperTrack's flat Local() features (common.sim.features layout). Shape: (..., 16 N + 3)."""
         return local_vector(self.pos, self.rot, self.vel, self.angvel)
 
 

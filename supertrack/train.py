@@ -16,14 +16,14 @@ from typing import Any
 
 import numpy as np
 
-from common.checkpoint import CheckpointError
-from common.collect import CollectorError
-from common.config import to_dict
-from common.evaluate import EvalResult
-from common.humanoid import Humanoid
-from common.motion_library import MotionLibrary
-from common.run import read_checkpoint
-from common.training import Trainer, add_common_arguments, compat_meta, setup
+from common.character.humanoid import Humanoid
+from common.motion.library import MotionLibrary
+from common.sim.collect import CollectorError
+from common.train.checkpoint import CheckpointError
+from common.train.config import to_dict
+from common.train.evaluate import EvalResult
+from common.train.run import read_checkpoint
+from common.train.training import Trainer, add_common_arguments, compat_meta, setup
 from supertrack.config import SuperTrackConfig
 from supertrack.learner import SuperTrackLearner, clip_weights
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from common.averaging import WeightAverage
+from common.train.averaging import WeightAverage
 
 
 class _Net(torch.nn.Module):

@@ -1,4 +1,4 @@
-"""Tests of common.buffer.CyclicBuffer against hand-computed layouts and windows."""
+"""Tests of common.sim.buffer.CyclicBuffer against hand-computed layouts and windows."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import h5py
 import numpy as np
 import pytest
 
-from common.buffer import CyclicBuffer
+from common.sim.buffer import CyclicBuffer
 
 FIELDS = {"step": ((), "int64"), "pos": ((2, 3), "float32")}
 

@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.motion_import import bundled_bvh_dir
-from common.motion_import.bvh import (
+from common.maths.rotations import quat_to_matrix
+from common.motion.motion_import import bundled_bvh_dir
+from common.motion.motion_import.bvh import (
     BvhFormatError,
     euler_to_quat,
     forward_kinematics,
@@ -20,7 +21,6 @@ from common.motion_import.bvh import (
     rest_positions,
     write_bvh,
 )
-from common.rotations import quat_to_matrix
 
 ORDERS = ["".join(p) for p in itertools.permutations("XYZ")]
 
@@ -92,7 +92,7 @@ def test_rotation_hand_worked() -> None:
     bvh = parse_bvh(_one_joint("ZXY", (90.0, 90.0, 0.0)), "tiny.bvh")
     pos, rot = forward_kinematics(bvh)
     np.testing.assert_allclose(pos[0, 1], [0.0, 0.0, 1.0], atol=1e-12)
-    from common.rotations import quat_rotate
+    from common.maths.rotations import quat_rotate
 
     np.testing.assert_allclose(pos[0, 1] + quat_rotate(rot[0, 1], bvh.joints[1].end_site), [2.0, 0.0, 1.0], atol=1e-12)
     # The extrinsic reading (Rx(90) Rz(90)) would put the child at (0, 0, 1) too but the site at (0, -2, 1): differ.

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from common.collect import CollectorError, CollectorSpec, LocalCollector, ProcessCollector
-from common.gym import GymConfig, StepResult
-from common.humanoid import Humanoid
-from common.motion_dataset import load_motions
-from common.rewards import TerminationConfig
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.sim.collect import CollectorError, CollectorSpec, LocalCollector, ProcessCollector
+from common.sim.gym import GymConfig, StepResult
+from common.sim.rewards import TerminationConfig
 
 FIELDS = {"qpos": ((35,), "float32"), "noise": ((28,), "float64")}
 

@@ -1,4 +1,4 @@
-"""Tests of common.config: strict YAML -> frozen dataclass loading, overrides and round trips."""
+"""Tests of common.train.config: strict YAML -> frozen dataclass loading, overrides and round trips."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import Literal
 import pytest
 import yaml
 
-from common.config import ConfigError, apply_overrides, from_dict, load_config, save_config, to_dict
+from common.train.config import ConfigError, apply_overrides, from_dict, load_config, save_config, to_dict
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from common.features import (
+from common.character.humanoid import Humanoid
+from common.maths.rotations import quat_from_axis_angle, quat_from_yaw, quat_mul, quat_rotate
+from common.motion.dataset import load_motions
+from common.sim.features import (
     feature_slices,
     flatten_observation,
     local_features,
@@ -14,9 +17,6 @@ from common.features import (
     local_vector,
     tracking_observation,
 )
-from common.humanoid import Humanoid
-from common.motion_dataset import load_motions
-from common.rotations import quat_from_axis_angle, quat_from_yaw, quat_mul, quat_rotate
 
 
 @pytest.fixture(scope="module")

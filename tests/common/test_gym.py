@@ -7,13 +7,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from common.buffer import CyclicBuffer
-from common.gym import GymConfig, TrackingGym
-from common.humanoid import Humanoid
-from common.motion_dataset import load_motions
-from common.motion_library import CharacterState, MotionLibrary
-from common.rewards import RewardConfig, TerminationConfig, TrackingReward, termination
-from common.rotations import quat_from_axis_angle, quat_mul
+from common.character.humanoid import Humanoid
+from common.character.state import CharacterState
+from common.maths.rotations import quat_from_axis_angle, quat_mul
+from common.motion.dataset import load_motions
+from common.motion.library import MotionLibrary
+from common.sim.buffer import CyclicBuffer
+from common.sim.gym import GymConfig, TrackingGym
+from common.sim.rewards import RewardConfig, TerminationConfig, TrackingReward, termination
 
 
 @pytest.fixture(scope="module")
@@ -238,7 +239,7 @@ def test_gym_frames_form_valid_buffer_windows(library: MotionLibrary, humanoid: 
 
 
 def test_library_rate_must_match_gym(humanoid: Humanoid) -> None:
-    from common.humanoid import PhysicsConfig
+    from common.character.humanoid import PhysicsConfig
 
     lib30 = load_motions(["walk"], Humanoid(PhysicsConfig(control_hz=30.0)))
     with pytest.raises(ValueError, match="30 Hz"):

@@ -7,11 +7,11 @@ import pytest
 
 gymnasium = pytest.importorskip("gymnasium")
 
-from common.gym import GymConfig  # noqa: E402
-from common.gym_wrapper import TrackingVectorEnv  # noqa: E402
-from common.humanoid import Humanoid  # noqa: E402
-from common.motion_dataset import load_motions  # noqa: E402
-from common.rewards import TerminationConfig  # noqa: E402
+from common.character.humanoid import Humanoid  # noqa: E402
+from common.motion.dataset import load_motions  # noqa: E402
+from common.sim.gym import GymConfig  # noqa: E402
+from common.sim.gym_wrapper import TrackingVectorEnv  # noqa: E402
+from common.sim.rewards import TerminationConfig  # noqa: E402
 
 
 def test_vector_env_api() -> None:

@@ -10,9 +10,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from common.humanoid import DEEPMIMIC_JOINTS, Humanoid, PhysicsConfig
+from common.character.humanoid import DEEPMIMIC_JOINTS, Humanoid, PhysicsConfig
 
-DATA = Path(__file__).resolve().parents[2] / "common" / "data" / "deepmimic"
+DATA = Path(__file__).resolve().parents[2] / "common" / "motion" / "data" / "deepmimic"
 AMP_XML = Path(__file__).resolve().parents[1] / "data" / "amp_humanoid.xml"
 
 # DeepMimic joint name -> our body name (the joint's child body).
@@ -129,7 +129,7 @@ def test_matches_amp_humanoid(humanoid: Humanoid) -> None:
 
 def test_hinges_compose_as_intrinsic_xyz(humanoid: Humanoid) -> None:
     """Three nested hinges x, y, z give the body rotation Rx(a) Ry(b) Rz(c) relative to the parent."""
-    from common.rotations import euler_xyz_to_quat, quat_conj, quat_mul
+    from common.maths.rotations import euler_xyz_to_quat, quat_conj, quat_mul
 
     m = humanoid.model
     d = mujoco.MjData(m)

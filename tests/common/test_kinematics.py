@@ -5,10 +5,10 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from common.humanoid import Humanoid
-from common.kinematics import ForwardKinematics
-from common.motion_library import body_states
-from common.rotations import quat_normalize
+from common.character.humanoid import Humanoid
+from common.character.kinematics import ForwardKinematics
+from common.maths.rotations import quat_normalize
+from common.motion.library import body_states
 
 
 def test_matches_mj_forward_on_random_states() -> None:

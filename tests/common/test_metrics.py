@@ -1,4 +1,4 @@
-"""Tests for common.metrics against hand-computed values."""
+"""Tests for common.train.metrics against hand-computed values."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from common.metrics import (
+from common.train.metrics import (
     METRIC_NAMES,
     METRICS,
     best_index,

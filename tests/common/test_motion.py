@@ -10,11 +10,11 @@ import h5py
 import numpy as np
 import pytest
 
-from common.humanoid import BodyGeometry, Humanoid
-from common.motion import MotionFormatError, read_clip_pack, read_deepmimic, y_up_to_z_up_pos, y_up_to_z_up_quat
-from common.motion_dataset import bundled_motion_dir, load_dataset, resolve_clips, save_dataset
-from common.motion_library import MotionLibrary
-from common.rotations import angular_velocity, quat_geodesic_angle, quat_rotate, quat_yaw
+from common.character.humanoid import BodyGeometry, Humanoid
+from common.maths.rotations import angular_velocity, quat_geodesic_angle, quat_rotate, quat_yaw
+from common.motion.dataset import bundled_motion_dir, load_dataset, resolve_clips, save_dataset
+from common.motion.library import MotionLibrary
+from common.motion.motion import MotionFormatError, read_clip_pack, read_deepmimic, y_up_to_z_up_pos, y_up_to_z_up_quat
 
 DT = 1.0 / 60.0
 
@@ -263,7 +263,7 @@ def test_dataset_truncated_or_other_version_fails_clearly(
         f.attrs["version"] = 99
     with pytest.raises(MotionFormatError, match="version 99"):
         load_dataset(path, humanoid)
-    from common.humanoid import PhysicsConfig
+    from common.character.humanoid import PhysicsConfig
 
     save_dataset(path, walk_lib, humanoid)
     with pytest.raises(MotionFormatError, match="30.0 Hz"):

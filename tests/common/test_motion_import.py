@@ -9,18 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.humanoid import DEEPMIMIC_JOINTS, Humanoid
-from common.motion import Clip, MotionFormatError, read_deepmimic
-from common.motion_cli import main as mimic_motions
-from common.motion_dataset import load_motions, resolve_clips
-from common.motion_import import bundled_bvh_dir, cleanup
-from common.motion_import.bvh import euler_to_quat, forward_kinematics, quat_to_euler, read_bvh, write_bvh
-from common.motion_import.deepmimic import write_deepmimic
-from common.motion_import.humanoid_bvh import humanoid_bvh, write_humanoid_bvh
-from common.motion_import.joint_map import load_joint_map
-from common.motion_import.retarget import Retargeted, RetargetOptions, retarget
-from common.motion_library import MotionLibrary
-from common.rotations import quat_from_axis_angle, quat_geodesic_angle, quat_mul, quat_rotate
+from common.character.humanoid import DEEPMIMIC_JOINTS, Humanoid
+from common.maths.rotations import quat_from_axis_angle, quat_geodesic_angle, quat_mul, quat_rotate
+from common.motion.cli import main as mimic_motions
+from common.motion.dataset import load_motions, resolve_clips
+from common.motion.library import MotionLibrary
+from common.motion.motion import Clip, MotionFormatError, read_deepmimic
+from common.motion.motion_import import bundled_bvh_dir, cleanup
+from common.motion.motion_import.bvh import euler_to_quat, forward_kinematics, quat_to_euler, read_bvh, write_bvh
+from common.motion.motion_import.deepmimic import write_deepmimic
+from common.motion.motion_import.humanoid_bvh import humanoid_bvh, write_humanoid_bvh
+from common.motion.motion_import.joint_map import load_joint_map
+from common.motion.motion_import.retarget import Retargeted, RetargetOptions, retarget
 
 TAKE = bundled_bvh_dir() / "131_01.bvh"
 CMU_UNIT = 0.056444

@@ -8,11 +8,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from common.evaluate import EvalConfig, evaluate, reference_policy
-from common.gym import GymConfig, TrackingGym
-from common.humanoid import Humanoid
-from common.motion_dataset import load_motions
-from common.pushes import PushConfig, impulse_velocity_change, push_schedule
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.sim.gym import GymConfig, TrackingGym
+from common.sim.pushes import PushConfig, impulse_velocity_change, push_schedule
+from common.train.evaluate import EvalConfig, evaluate, reference_policy
 
 
 def test_schedule_by_hand_and_seeded() -> None:

@@ -1,4 +1,4 @@
-"""Tests for common.rotations (numpy) and common.torch_rotations (torch)."""
+"""Tests for common.maths.rotations (numpy) and common.maths.torch_rotations (torch)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from common import rotations as rot
-from common import torch_rotations as trot
+from common.maths import rotations as rot
+from common.maths import torch_rotations as trot
 
 C45 = np.sqrt(0.5)
 # 120 degrees about (1, 1, 1): the cyclic permutation x -> y -> z -> x.

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from common.config import load_config
-from common.humanoid import Humanoid
-from common.motion_dataset import load_motions
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.train.config import load_config
 from ppo.config import PPOTrackerConfig
 from ppo.learner import PPOLearner
 

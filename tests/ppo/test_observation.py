@@ -6,12 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.config import ConfigError, from_dict
-from common.gym import GymConfig, TrackingGym
-from common.humanoid import Humanoid
-from common.motion_dataset import load_motions
-from common.motion_library import CharacterState, MotionLibrary
-from common.rotations import quat_from_yaw, quat_mul, quat_rotate, quat_yaw
+from common.character.humanoid import Humanoid
+from common.character.state import CharacterState
+from common.maths.rotations import quat_from_yaw, quat_mul, quat_rotate, quat_yaw
+from common.motion.dataset import load_motions
+from common.motion.library import MotionLibrary
+from common.sim.gym import GymConfig, TrackingGym
+from common.train.config import ConfigError, from_dict
 from ppo.config import ObservationConfig
 from ppo.observation import Observer, parc_features
 

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import torch
 
-from common import metrics as M
-from common.evaluate import evaluate
-from common.humanoid import Humanoid
-from common.logs import read_metrics
-from common.motion_dataset import load_motions
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.train import metrics as M
+from common.train.evaluate import evaluate
+from common.train.logs import read_metrics
 from ppo.train import main as train_ppo
 from report.compare import PUSHES, Report, build_report, main
 from report.runs import ReportError, export_module, load_run

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from common import render
+from common.train import render
 from ppo.train import main as train_ppo
 from report import watch
 from tests.common.test_render import _read_video
@@ -73,8 +73,8 @@ class _FakeViewer:
 def test_viewer_plays_the_episode_with_the_ghost(monkeypatch: pytest.MonkeyPatch) -> None:
     import mujoco.viewer
 
-    from common.humanoid import Humanoid
-    from common.motion_dataset import load_motions
+    from common.character.humanoid import Humanoid
+    from common.motion.dataset import load_motions
 
     humanoid = Humanoid()
     ref = load_motions(["walk"], humanoid).frames.qpos[:2]

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.evaluate import EvalConfig, evaluate
-from common.humanoid import Humanoid
-from common.kinematics import ForwardKinematics
-from common.motion_dataset import load_motions
+from common.character.humanoid import Humanoid
+from common.character.kinematics import ForwardKinematics
+from common.motion.dataset import load_motions
+from common.train.evaluate import EvalConfig, evaluate
 from samcon.config import CostConfig, FeedbackConfig, SearchConfig
 from samcon.cost import feedback_features, tracking_cost
 from samcon.feedback import ClipPlan, FeedbackPolicy, open_loop_policy

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from common import torch_rotations as R
-from common.gym import GymConfig, TrackingGym
-from common.humanoid import Humanoid, hinges_to_joint_rotations
-from common.motion_dataset import load_motions
-from common.motion_library import MotionLibrary
+from common.character.humanoid import Humanoid, hinges_to_joint_rotations
+from common.maths import torch_rotations as R
+from common.motion.dataset import load_motions
+from common.motion.library import MotionLibrary
+from common.sim.gym import GymConfig, TrackingGym
 from supertrack.config import PolicyLossWeights, WorldLossWeights
 from supertrack.losses import policy_loss, world_model_loss
 from supertrack.models import ROOT_OFFSET_POS_SCALE, Policy, WorldModel, root_offset_features

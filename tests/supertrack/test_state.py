@@ -7,9 +7,9 @@ import math
 import numpy as np
 import torch
 
-from common.humanoid import Humanoid, joint_rotations_to_hinges
-from common.motion_library import CharacterState
-from common.rotations import quat_from_axis_angle
+from common.character.humanoid import Humanoid, joint_rotations_to_hinges
+from common.character.state import CharacterState
+from common.maths.rotations import quat_from_axis_angle
 from supertrack.state import (
     STATE_LAYOUT,
     BodyState,

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import torch
 
-from common.config import load_config
-from common.humanoid import Humanoid
-from common.logs import read_metrics
-from common.motion_dataset import load_motions
-from common.run import read_checkpoint
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.train.config import load_config
+from common.train.logs import read_metrics
+from common.train.run import read_checkpoint
 from supertrack.config import SuperTrackConfig
 from supertrack.export import load_eval_policy
 from supertrack.learner import SuperTrackLearner

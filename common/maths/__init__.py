@@ -1,0 +1,1 @@
+"""Rotation maths: quaternions, matrices and angles in numpy and, differentiable, in torch."""

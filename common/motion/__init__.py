@@ -1,0 +1,1 @@
+"""Motion clips: reading, the kinematic reference library, the HDF5 dataset, import (BVH) and ``mimic-motions``."""

@@ -1,0 +1,367 @@
+"""The kinematic reference: many clips resampled to the control rate, queried by (clip, time) for N characters.
+
+For every frame the library holds the model's qpos/qvel and every body's world position, rotation, linear and
+angular velocity, computed with MuJoCo's own kinematics (``mj_kinematics``/``mj_comVel`` through
+``mj_forward`` and ``mj_objectVelocity``), so that the reference and the simulator agree by construction.
+
+Looping (``wrap``) clips continue past their end: cycle c is the first cycle moved by the rigid ground-plane
+transform Delta^c, where Delta takes the root's ground position and heading at the first keyframe to those at the
+last keyframe. Because mocap loops never close exactly, the joint rotations, root height and root tilt are
+bent towards the first keyframe over the cycle (the mismatch e at the end is applied as s/D * e at time s), so
+that pose and velocities stay continuous across the loop point instead of jumping once per cycle.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from common.character.humanoid import Humanoid
+from common.character.state import FRAME_FIELDS, CharacterState
+from common.maths.rotations import (
+    angular_velocity,
+    quat_conj,
+    quat_fix_hemisphere,
+    quat_from_rotvec,
+    quat_from_yaw,
+    quat_mul,
+    quat_normalize,
+    quat_rotate,
+    quat_rotate_inv,
+    quat_slerp,
+    quat_split_heading,
+    quat_to_euler_xyz_continuous,
+    quat_to_rotvec,
+    quat_yaw,
+)
+from common.motion.motion import Clip
+
+
+@dataclass(frozen=True)
+class ClipFrames:
+    """One clip on the control-rate grid t_k = k * dt (what the HDF5 dataset stores per clip).
+
+    A wrap clip is time-scaled so that its cycle lasts a whole number of steps n; its grid holds frames 0..n, frame n
+    being frame 0 of the next cycle. A one-shot clip's grid ends at the last grid time <= its duration.
+    """
+
+    name: str
+    source: str
+    loop: bool
+    duration: float
+    cycle_yaw: float
+    cycle_shift: np.ndarray
+    frames: CharacterState
+
+
+def _bend_loop(clip: Clip) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closes a wrap clip's loop: returns root_pos, root_rot, joint_rot bent towards the first keyframe."""
+    s = (clip.times / clip.duration)[:, None]
+    root_pos = clip.root_pos.copy()
+    root_pos[:, 2] += s[:, 0] * (clip.root_pos[0, 2] - clip.root_pos[-1, 2])
+    heading, tilt = quat_split_heading(clip.root_rot)
+    tilt_err = quat_to_rotvec(quat_mul(tilt[0], quat_conj(tilt[-1])))
+    tilt = quat_mul(quat_from_rotvec(s * tilt_err), tilt)
+    root_rot = quat_fix_hemisphere(quat_mul(heading, tilt), axis=0)
+    joint_err = quat_to_rotvec(quat_mul(clip.joint_rot[0], quat_conj(clip.joint_rot[-1])))
+    joint_rot = quat_mul(quat_from_rotvec(s[:, :, None] * joint_err[None]), clip.joint_rot)
+    return root_pos, root_rot, quat_fix_hemisphere(joint_rot, axis=0)
+
+
+def cycle_transform(clip: Clip) -> tuple[float, np.ndarray]:
+    """Delta of a wrap clip: yaw psi and shift t with x' = R_z(psi) x + t, taking keyframe 0 to the last keyframe."""
+    yaw = float(quat_yaw(clip.root_rot[-1]) - quat_yaw(clip.root_rot[0]))
+    yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
+    p0 = np.array([*clip.root_pos[0, :2], 0.0])
+    shift = clip.root_pos[-1] - quat_rotate(quat_from_yaw(np.array(yaw)), p0)
+    shift[2] = 0.0
+    return yaw, shift
+
+
+def cycle_power(yaw: np.ndarray, shift: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Delta^c for integer c (negative c gives the inverse), vectorised.
+
+    As a complex map of the ground plane: z -> e^{i c psi} z + t (1 - e^{i c psi}) / (1 - e^{i psi}).
+
+    Args:
+        yaw: Cycle yaw psi. Shape: (N,).
+        shift: Cycle shift t (z component ignored). Shape: (N, 3).
+        c: Cycle counts. Shape: (N,).
+
+    Returns:
+        (yaw * c, shift_c) with shift_c of shape (N, 3) and zero z.
+    """
+    t = shift[..., 0] + 1j * shift[..., 1]
+    rot_c = np.exp(1j * yaw * c)
+    denom = 1.0 - np.exp(1j * yaw)
+    small = np.abs(denom) < 1e-9
+    geom = np.where(small, c, (1.0 - rot_c) / np.where(small, 1.0, denom))
+    tc = t * geom
+    return yaw * c, np.stack([tc.real, tc.imag, np.zeros_like(tc.real)], axis=-1)
+
+
+def _sample_keyframes(
+    clip: Clip, times: np.ndarray, root_pos: np.ndarray, root_rot: np.ndarray, joint_rot: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Interpolates keyframes at arbitrary times (wrap clips continue with Delta; one-shot clips clamp)."""
+    if clip.loop:
+        cycles = np.floor(times / clip.duration)
+        local = times - cycles * clip.duration
+    else:
+        cycles = np.zeros_like(times)
+        local = np.clip(times, 0.0, clip.duration)
+    j = np.clip(np.searchsorted(clip.times, local, side="right") - 1, 0, len(clip.times) - 2)
+    w = np.clip((local - clip.times[j]) / (clip.times[j + 1] - clip.times[j]), 0.0, 1.0)
+    pos = root_pos[j] + w[:, None] * (root_pos[j + 1] - root_pos[j])
+    rot = quat_slerp(root_rot[j], root_rot[j + 1], w)
+    jrot = quat_slerp(joint_rot[j], joint_rot[j + 1], w[:, None])
+    if clip.loop:
+        yaw, shift = cycle_transform(clip)
+        yaw_c, shift_c = cycle_power(np.full_like(cycles, yaw), np.broadcast_to(shift, (len(cycles), 3)), cycles)
+        q_c = quat_from_yaw(yaw_c)
+        pos = quat_rotate(q_c, pos) + shift_c
+        rot = quat_mul(q_c, rot)
+    return pos, rot, jrot
+
+
+def resample_clip(clip: Clip, humanoid: Humanoid) -> ClipFrames:
+    """Resamples a clip to the control rate and computes every per-frame quantity.
+
+    Velocities are central differences over the grid (one-sided at the ends of a one-shot clip); the frames one
+    step outside the grid come from the neighbouring cycles of a wrap clip.
+    """
+    dt = humanoid.physics.control_dt
+    if clip.loop:
+        root_pos, root_rot, joint_rot = _bend_loop(clip)
+        # A cycle of a whole number of frames keeps every gym time on the grid (queries are plain lookups and the
+        # loop seam is exact): the clip is time-scaled by at most half a step per cycle (<= 1% for the bundled clips).
+        cycle_frames = max(2, int(round(clip.duration / dt)))
+        clip = replace(clip, times=clip.times * (cycle_frames * dt / clip.duration))
+        n = cycle_frames + 1
+        k = np.arange(-1, n + 1)
+    else:
+        root_pos, root_rot, joint_rot = clip.root_pos, clip.root_rot, clip.joint_rot
+        n = int(np.floor(clip.duration / dt + 1e-9)) + 1
+        if n < 2:
+            raise ValueError(f"{clip.source}: clip of {clip.duration:.4f} s is shorter than one control step")
+        k = np.arange(n)
+    times = k * dt
+    pos, rot, jrot = _sample_keyframes(clip, times, root_pos, root_rot, joint_rot)
+    rot = quat_fix_hemisphere(rot, axis=0)
+
+    qpos = np.zeros((len(k), humanoid.nq))
+    qpos[:, 0:3] = pos
+    qpos[:, 3:7] = rot
+    for j, group in enumerate(humanoid.joint_groups):
+        if group.kind == "spherical":
+            qpos[:, list(group.qpos)] = quat_to_euler_xyz_continuous(jrot[:, j])
+        else:
+            # A single-axis rotation about +y: angle = 2 atan2(q_y, q_w).
+            qpos[:, group.qpos[0]] = 2.0 * np.arctan2(jrot[:, j, 2], jrot[:, j, 0])
+
+    qvel = np.zeros((len(k), humanoid.nv))
+    hinges = np.arange(7, humanoid.nq)
+    if clip.loop:
+        inner = slice(1, n + 1)
+        qvel_all = (qpos[2:] - qpos[:-2]) / (2 * dt)
+        w_world = angular_velocity(rot[:-2], rot[2:], 2 * dt)
+        qvel[inner, 0:3] = qvel_all[:, 0:3]
+        qvel[inner, 6:] = qvel_all[:, hinges]
+        qvel[inner, 3:6] = quat_rotate_inv(rot[inner], w_world)
+        qpos, qvel = qpos[inner], qvel[inner]
+    else:
+        qvel[:, 0:3] = np.gradient(qpos[:, 0:3], dt, axis=0)
+        qvel[:, 6:] = np.gradient(qpos[:, hinges], dt, axis=0)
+        w_world = np.empty((n, 3))
+        w_world[1:-1] = angular_velocity(rot[:-2], rot[2:], 2 * dt)
+        w_world[0] = angular_velocity(rot[0], rot[1], dt)
+        w_world[-1] = angular_velocity(rot[-2], rot[-1], dt)
+        qvel[:, 3:6] = quat_rotate_inv(rot, w_world)
+    yaw, shift = cycle_transform(clip) if clip.loop else (0.0, np.zeros(3))
+    return ClipFrames(clip.name, clip.source, clip.loop, clip.duration, yaw, shift, body_states(humanoid, qpos, qvel))
+
+
+def body_states(humanoid: Humanoid, qpos: np.ndarray, qvel: np.ndarray) -> CharacterState:
+    """Per-body world states from generalised coordinates with MuJoCo's kinematics.
+
+    Args:
+        humanoid: The model.
+        qpos: Shape: (T, nq).
+        qvel: Shape: (T, nv).
+    """
+    from common.character.kinematics import ForwardKinematics
+
+    return ForwardKinematics(humanoid)(qpos.copy(), qvel.copy())
+
+
+class MotionLibrary:
+    """Clips on one control-rate grid, with vectorised queries and weighted sampling of start points.
+
+    Args:
+        clips: Resampled clips (from :func:`resample_clip` or a dataset file).
+        control_dt: The grid step in seconds.
+    """
+
+    def __init__(self, clips: list[ClipFrames], control_dt: float) -> None:
+        if not clips:
+            raise ValueError("a motion library needs at least one clip")
+        self.clips = clips
+        self.dt = control_dt
+        self.names = [c.name for c in clips]
+        counts = np.array([len(c.frames.qpos) for c in clips])
+        self.start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        self.num_frames = counts
+        self.loop = np.array([c.loop for c in clips])
+        self.duration = np.array([c.duration for c in clips])
+        self.cycle_yaw = np.array([c.cycle_yaw for c in clips])
+        self.cycle_shift = np.stack([c.cycle_shift for c in clips])
+        self.frames = CharacterState(**{f: np.concatenate([getattr(c.frames, f) for c in clips]) for f in FRAME_FIELDS})
+        # The last time a one-shot clip can be queried on its grid; wrap clips never end.
+        self.end_time = np.where(self.loop, np.inf, (counts - 1) * control_dt)
+
+    @classmethod
+    def from_clips(cls, clips: list[Clip], humanoid: Humanoid) -> MotionLibrary:
+        return cls([resample_clip(c, humanoid) for c in clips], humanoid.physics.control_dt)
+
+    @property
+    def num_clips(self) -> int:
+        return len(self.clips)
+
+    def clip_weights(self, by_name: Mapping[str, float]) -> np.ndarray | None:
+        """RSI sampling weights per clip from ``{clip name: weight}``; unnamed clips weigh 1. None when empty.
+
+        Raises:
+            ValueError: A name that is not a clip of the library, or a negative weight (named).
+        """
+        if not by_name:
+            return None
+        weights = np.ones(self.num_clips)
+        for name, w in by_name.items():
+            if name not in self.names:
+                raise ValueError(f"clip weight for '{name}': no such clip among the motions ({', '.join(self.names)})")
+            if not w >= 0.0:
+                raise ValueError(f"clip weight for '{name}' must be >= 0, got {w}")
+            weights[self.names.index(name)] = w
+        if weights.sum() <= 0.0:
+            raise ValueError("clip weights are all 0: no clip could start an episode")
+        return weights
+
+    def clip_index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KeyError(f"no clip '{name}' in the motion library; clips: {self.names}") from None
+
+    def query(self, clip_ids: np.ndarray, times: np.ndarray) -> CharacterState:
+        """The reference state of N characters at the given clips and times.
+
+        Frames are interpolated linearly (rotations by normalised lerp, which equals slerp to 1e-4 rad over one
+        60 Hz step); wrap clips are continued by the cycle transform, one-shot clips are held at their end.
+
+        Args:
+            clip_ids: Clip index per character. Shape: (N,).
+            times: Time in seconds since the clip's start per character. Shape: (N,).
+
+        Returns:
+            CharacterState with leading shape (N,).
+        """
+        clip_ids = np.asarray(clip_ids, dtype=np.int64)
+        times = np.asarray(times, dtype=np.float64)
+        loop = self.loop[clip_ids]
+        dur = self.duration[clip_ids]
+        cycles = np.where(loop, np.floor(times / dur), 0.0)
+        local = np.where(loop, times - cycles * dur, np.clip(times, 0.0, self.end_time[clip_ids]))
+        u = local / self.dt
+        k = np.rint(u)
+        on_grid = np.abs(u - k) < 1e-6
+        i0 = np.clip(np.where(on_grid, k, np.floor(u)).astype(np.int64), 0, self.num_frames[clip_ids] - 1)
+        state = self.frames[self.start[clip_ids] + i0]
+        off = np.flatnonzero(~on_grid)
+        if len(off):
+            self._interpolate(state, clip_ids[off], i0[off], (u - np.floor(u))[off], off)
+        if np.any(cycles > 0):
+            yaw_c, shift_c = cycle_power(self.cycle_yaw[clip_ids], self.cycle_shift[clip_ids], cycles)
+            _move_yaw(state, yaw_c, shift_c)
+        return state
+
+    def _interpolate(self, state: CharacterState, clip_ids: np.ndarray, i0: np.ndarray, w: np.ndarray,
+                     rows: np.ndarray) -> None:  # fmt: skip
+        """Replaces ``rows`` of ``state`` by the blend of frames i0 and i0 + 1 with weight w (times off the grid)."""
+        i0 = np.minimum(i0, self.num_frames[clip_ids] - 2)
+        a = self.frames[self.start[clip_ids] + i0]
+        b = self.frames[self.start[clip_ids] + i0 + 1]
+        w1, w2 = w[:, None], w[:, None, None]
+        qpos = a.qpos + w1 * (b.qpos - a.qpos)
+        qpos[:, 3:7] = _nlerp(a.qpos[:, 3:7], b.qpos[:, 3:7], w1)
+        state.qpos[rows] = qpos
+        state.qvel[rows] = a.qvel + w1 * (b.qvel - a.qvel)
+        state.body_pos[rows] = a.body_pos + w2 * (b.body_pos - a.body_pos)
+        state.body_rot[rows] = _nlerp(a.body_rot, b.body_rot, w2)
+        state.body_linvel[rows] = a.body_linvel + w2 * (b.body_linvel - a.body_linvel)
+        state.body_angvel[rows] = a.body_angvel + w2 * (b.body_angvel - a.body_angvel)
+
+    def sample_starts(
+        self, n: int, rng: np.random.Generator, weights: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Draws (clip, start time) for reference state initialisation.
+
+        Clips are drawn with probability proportional to ``weights`` (uniform by default); the start is a grid
+        frame drawn uniformly among those that leave at least one step to play.
+
+        Returns:
+            clip_ids (n,) and times (n,) in seconds.
+        """
+        if weights is None:
+            p = np.full(self.num_clips, 1.0 / self.num_clips)
+        else:
+            weights = np.asarray(weights, dtype=np.float64)
+            if weights.shape != (self.num_clips,) or np.any(weights < 0) or weights.sum() <= 0:
+                raise ValueError(f"clip weights must be {self.num_clips} non-negative numbers, not all zero")
+            p = weights / weights.sum()
+        clip_ids = rng.choice(self.num_clips, size=n, p=p)
+        # Wrap clips: frames whose time lies in [0, duration); one-shot clips: all but the last frame.
+        last = np.where(self.loop, np.ceil(self.duration / self.dt - 1e-9), self.num_frames - 1)
+        frame = np.floor(rng.random(n) * last[clip_ids]).astype(np.int64)
+        return clip_ids, frame * self.dt
+
+
+def _nlerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
+    q1 = np.where(np.sum(q0 * q1, axis=-1, keepdims=True) < 0, -q1, q1)
+    return quat_normalize(q0 + w * (q1 - q0))
+
+
+def _rotate_z(v: np.ndarray, c: np.ndarray, s: np.ndarray) -> None:
+    """Rotates vectors about +z in place: (x, y) -> (c x - s y, s x + c y). c, s broadcast against v[..., 0]."""
+    x = v[..., 0].copy()
+    v[..., 0] = c * x - s * v[..., 1]
+    v[..., 1] = s * x + c * v[..., 1]
+
+
+def _yaw_mul(q: np.ndarray, c: np.ndarray, s: np.ndarray) -> None:
+    """Left-multiplies quaternions in place by (c, 0, 0, s), a rotation about +z: by components (w, x, y, z)."""
+    w, x, y, z = (q[..., i].copy() for i in range(4))
+    q[..., 0] = c * w - s * z
+    q[..., 1] = c * x - s * y
+    q[..., 2] = c * y + s * x
+    q[..., 3] = c * z + s * w
+
+
+def _move_yaw(state: CharacterState, yaw: np.ndarray, shift: np.ndarray) -> None:
+    """Applies a ground-plane transform (rotation ``yaw`` about z, then ``shift``) to a state, in place.
+
+    Written for rotations about z only: a handful of component operations instead of general quaternion maths.
+    """
+    c, s = np.cos(yaw), np.sin(yaw)
+    ch, sh = np.cos(0.5 * yaw), np.sin(0.5 * yaw)
+    cb, sb, chb, shb = c[:, None], s[:, None], ch[:, None], sh[:, None]
+    _rotate_z(state.qpos[:, 0:3], c, s)
+    state.qpos[:, 0:2] += shift[:, :2]
+    _yaw_mul(state.qpos[:, 3:7], ch, sh)
+    _rotate_z(state.qvel[:, 0:3], c, s)
+    _rotate_z(state.body_pos, cb, sb)
+    state.body_pos[..., :2] += shift[:, None, :2]
+    _yaw_mul(state.body_rot, chb, shb)
+    _rotate_z(state.body_linvel, cb, sb)
+    _rotate_z(state.body_angvel, cb, sb)

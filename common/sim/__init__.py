@@ -1,0 +1,1 @@
+"""Simulation and data: the tracking gym, physics stepping, rewards, pushes, features, the buffer and the collector."""

@@ -1,0 +1,39 @@
+"""Gym frames for a learner's buffer: collected in the learner's process, or by worker processes beside it.
+
+The collector knows no learner. It gets a picklable factory that builds a :class:`FrameActor` (the learner's policy
+copy plus exploration noise, turning a gym state into PD targets and the learner's per-frame fields), the layout of
+those fields and the policy's weights, and it hands back whole blocks of frames, (T, N, *shape) per field, with the
+bookkeeping fields of :mod:`common.sim.buffer` (``episode_id``, ``terminated``, ``truncated``) filled in.
+
+- ``processes = 0`` (:class:`LocalCollector`): the gym steps in the learner's process when a block is asked for,
+  with the weights given then: the learner's classic collect-then-update loop.
+- ``processes = K >= 1`` (:class:`ProcessCollector`): K worker processes, each with its own gym of about N / K
+  characters, forked by a clean ``forkserver`` (the learner's own process is never forked: torch's threads and fork
+  do not mix; the server imports torch and the gym once, so a worker starts in about a second). Pipelined
+  lockstep: :meth:`ProcessCollector.next_block` returns the block collected during the learner's previous update
+  and at once asks for the next one with the weights given now, so block k + 1 is collected with the weights
+  update k starts from while update k runs. What a worker computes depends only on its gym state, its noise
+  generator and the weights and step counts it was sent, never on timing: one seed gives one result, and
+  :meth:`ProcessCollector.state_dict` (which waits for the block in flight and keeps it) lets ``--resume``
+  continue exactly. Frames and weights travel through shared memory (two frame slots, used in turn, so a returned
+  block stays valid until the next call); only small commands and chart sums are pickled.
+
+Gym seeds: worker p's gym uses ``gym.seed + p`` and its noise generator ``[noise_seed, p]``, so ``processes = 1``
+gives frame for frame what ``processes = 0`` gives with the same weights. Episode ids become ``id * K + p`` so that
+they stay unique across workers.
+"""
+
+from common.sim.collect.process import Collector, ProcessCollector, make_collector
+from common.sim.collect.source import (
+    ActorFactory,
+    Block,
+    CollectorError,
+    CollectorSpec,
+    FieldLayout,
+    FrameActor,
+    FrameSource,
+    LocalCollector,
+)
+
+__all__ = ["ActorFactory", "Block", "Collector", "CollectorError", "CollectorSpec", "FieldLayout", "FrameActor",
+           "FrameSource", "LocalCollector", "ProcessCollector", "make_collector"]

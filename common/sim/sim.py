@@ -1,0 +1,94 @@
+"""N characters stepped together in MuJoCo with ``mujoco.rollout`` (C++ threads, no Python loop per substep).
+
+Each character is one batch entry of a rollout of ``substeps`` physics steps with a constant control (the PD
+targets of the position actuators). All arrays are preallocated and contiguous so that the rollout runs with
+``skip_checks``. A character whose simulation raised a MuJoCo warning (e.g. bad accelerations) has the rest of its
+rollout frozen, so its time stops advancing: that, or a non-finite or absurd velocity, marks it as diverged.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from common.character.humanoid import Humanoid
+
+_FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+class BatchedSim:
+    """The physics of N characters.
+
+    Args:
+        humanoid: The model (its timestep and substeps from the physics config).
+        num_envs: Number of characters N.
+        threads: Rollout threads; 0 or 1 runs on the calling thread.
+        max_speed: A generalised velocity above this (m/s or rad/s) counts as a blown-up simulation.
+    """
+
+    def __init__(self, humanoid: Humanoid, num_envs: int, threads: int = 2, max_speed: float = 1e3) -> None:
+        m = humanoid.model
+        self.model = m
+        self.num_envs = num_envs
+        self.substeps = humanoid.physics.substeps
+        self.dt = humanoid.physics.control_dt
+        self.max_speed = max_speed
+        nstate = mujoco.mj_stateSize(m, _FULL.value)
+        expected = 1 + m.nq + m.nv + m.na
+        if nstate != expected:
+            raise ValueError(f"full physics state has {nstate} values, expected time+qpos+qvel+act = {expected}")
+        self._qpos = slice(1, 1 + m.nq)
+        self._qvel = slice(1 + m.nq, 1 + m.nq + m.nv)
+        self.state = np.zeros((num_envs, nstate))
+        self._ctrl = np.zeros((num_envs, self.substeps, m.nu))
+        self._out = np.zeros((num_envs, self.substeps, nstate))
+        self._sensor = np.zeros((num_envs, self.substeps, m.nsensordata))
+        threads = max(0, int(threads))
+        self._datas = [mujoco.MjData(m) for _ in range(max(1, threads))]
+        self._models = [m] * num_envs
+        self._pool = rollout.Rollout(nthread=threads if threads > 1 else 0)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.close()
+            self._pool = None
+
+    @property
+    def qpos(self) -> np.ndarray:
+        """View of every character's qpos. Shape: (N, nq)."""
+        return self.state[:, self._qpos]
+
+    @property
+    def qvel(self) -> np.ndarray:
+        """View of every character's qvel. Shape: (N, nv)."""
+        return self.state[:, self._qvel]
+
+    def set_state(self, ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        """Places characters ``ids`` at the given coordinates, at rest time 0 and with no actuator state."""
+        self.state[ids] = 0.0
+        self.state[ids, self._qpos] = qpos
+        self.state[ids, self._qvel] = qvel
+
+    def step(self, ctrl: np.ndarray) -> np.ndarray:
+        """Advances every character by one control step.
+
+        Args:
+            ctrl: Position actuator targets. Shape: (N, nu).
+
+        Returns:
+            diverged: characters whose simulation blew up (their state is left as it is; the caller resets them).
+            Shape: (N,).
+        """
+        self._ctrl[:] = ctrl[:, None, :]
+        t0 = self.state[:, 0].copy()
+        self._pool.rollout(
+            self._models, self._datas, self.state, self._ctrl, state=self._out, sensordata=self._sensor,
+            nstep=self.substeps, skip_checks=True,
+        )  # fmt: skip
+        final = self._out[:, -1]
+        self.state[:] = final
+        advanced = np.abs(final[:, 0] - (t0 + self.dt)) < 0.25 * self.dt / self.substeps
+        finite = np.isfinite(final).all(axis=1)
+        calm = np.abs(np.nan_to_num(final[:, self._qvel], nan=np.inf)).max(axis=1) < self.max_speed
+        return ~(advanced & finite & calm)
