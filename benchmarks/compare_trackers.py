@@ -146,35 +146,40 @@ def _start(job: Job, args: argparse.Namespace, logs: Path) -> subprocess.Popen |
         raise SystemExit(f"error: {job.out} holds files but no checkpoint; move it away or delete it")
     _log(f"{job.learner} seed {job.seed}: {shlex.join(cmd)}")
     logs.mkdir(parents=True, exist_ok=True)
-    log = open(logs / f"{job.learner}-s{job.seed}.log", "a", encoding="utf-8")  # noqa: SIM115 - closed with the process
-    return subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+    with open(logs / f"{job.learner}-s{job.seed}.log", "a", encoding="utf-8") as log:  # the child keeps its copy
+        return subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
 
 
 def train_all(args: argparse.Namespace, out: Path) -> list[Job]:
-    """Runs the suite's jobs, ``--parallel`` at a time; raises SystemExit naming the log of a failed run."""
-    todo, running, done = jobs(args, out), [], []
+    """Runs the suite's jobs, ``--parallel`` at a time.
+
+    A run that fails stops the suite from starting more, but the runs already going finish (their minutes are not
+    thrown away; a rerun of the same command reuses them); then SystemExit names the failed run's log.
+    """
+    todo, running, failed = jobs(args, out), [], []
     pending = list(todo)
     while pending or running:
-        while pending and len(running) < max(1, args.parallel):
+        while pending and not failed and len(running) < max(1, args.parallel):
             job = pending.pop(0)
             proc = _start(job, args, out / "logs")
-            if proc is None:
-                done.append(job)
-            else:
+            if proc is not None:
                 running.append((job, proc))
+        if not running:
+            break
         time.sleep(0.2 if args.debug else 5.0)
         for job, proc in list(running):
             if proc.poll() is None:
                 continue
             running.remove((job, proc))
+            log = out / "logs" / f"{job.learner}-s{job.seed}.log"
             if proc.returncode != 0:
-                for _, other in running:
-                    other.terminate()
-                raise SystemExit(f"error: {job.learner} seed {job.seed} exited with {proc.returncode}; "
-                                 f"see {out / 'logs' / f'{job.learner}-s{job.seed}.log'}")  # fmt: skip
+                _log(f"{job.learner} seed {job.seed}: exited with {proc.returncode} (see {log}); no new runs start")
+                failed.append(f"{job.learner} seed {job.seed} exited with {proc.returncode}; see {log}")
+                continue
             (job.out / COMMAND_FILE).write_text(json.dumps({"args": job.cmd[1:]}, indent=1) + "\n")
             _log(f"{job.learner} seed {job.seed}: done")
-            done.append(job)
+    if failed:
+        raise SystemExit("error: " + "; ".join(failed))
     return todo
 
 

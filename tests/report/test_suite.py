@@ -102,3 +102,22 @@ def test_runs_on_other_clips_are_not_seeds_of_each_other() -> None:
     runs = [run("supertrack", ["walk"], "a"), run("samcon", ["walk"], "b"), run("samcon", ["run"], "c"),
             run("supertrack", ["walk"], "d")]  # fmt: skip
     assert _groups(runs) == {"supertrack": [0, 3], "samcon (walk)": [1], "samcon (run)": [2]}
+
+
+def test_a_failed_run_stops_new_starts_but_lets_running_ones_finish(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    module = _suite_module()
+    py = sys.executable
+    fake = [module.Job("supertrack", 0, tmp_path / "a", [py, "-c", "import sys; sys.exit(3)"]),
+            module.Job("ppo", 0, tmp_path / "b", [py, "-c", "import time; time.sleep(1.5)"]),
+            module.Job("supertrack", 1, tmp_path / "c", [py, "-c", "pass"])]  # fmt: skip
+    for job in fake:
+        job.out.mkdir()
+    monkeypatch.setattr(module, "jobs", lambda args, out: fake)
+    args = module.build_parser().parse_args(["--debug", "--parallel", "2", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="supertrack seed 0 exited with 3"):
+        module.train_all(args, tmp_path)
+    assert (tmp_path / "b" / module.COMMAND_FILE).exists()  # the run going at the failure finished
+    assert not (tmp_path / "c" / module.COMMAND_FILE).exists()  # and nothing new started
+    assert not (tmp_path / "logs" / "supertrack-s1.log").exists()
