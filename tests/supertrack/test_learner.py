@@ -125,7 +125,7 @@ def test_bf16_and_float32_losses_on_one_batch_agree_within_bf16_rounding(learner
         (w_loss, w_terms), (p_loss, p_terms) = learner.world_model_loss(windows), learner.policy_loss(windows, noise)
         assert w_loss.dtype == p_loss.dtype == torch.float32
         terms[name] = {k: float(v) for k, v in {**w_terms, **p_terms}.items()}
-    assert len(terms["fp32"]) == 17
+    assert len(terms["fp32"]) == 18  # 4 world-model terms + loss, 12 policy terms + loss
     for k, exact in terms["fp32"].items():
         assert terms["bf16"][k] == pytest.approx(exact, rel=2**-8, abs=0), k
         assert terms["bf16 traced"][k] == pytest.approx(terms["bf16"][k], rel=1e-6), k  # graph capture: same numbers
