@@ -136,8 +136,8 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
     wm = figures.world_model_curves(runs, out / "world_model.png")
     if wm is not None:
         report.files["world_model"] = wm
-    strips = _filmstrips(report, policies, library, humanoid, out, render_clips if do_render else 0)
-    videos = _videos(report, policies, library, humanoid, out, video_clips if do_render else 0)
+    strips, videos = _pictures(report, policies, library, humanoid, out, render_clips if do_render else 0,
+                               video_clips if do_render else 0)  # fmt: skip
     md = _markdown(report, strips, videos)
     (out / "report.md").write_text(md, encoding="utf-8")
     (out / "report.html").write_text(markdown_to_html(md, out, "Tracker comparison"), encoding="utf-8")
@@ -146,60 +146,51 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
     return report
 
 
-def _filmstrips(report: Report, policies: list[Policy], library: MotionLibrary, humanoid: Humanoid, out: Path,
-                clips: int) -> dict[str, list[tuple[str, Path]]]:  # fmt: skip
-    """{run label: [(clip, png)]}; adds a note saying why nothing was drawn when rendering is off or unavailable."""
-    if clips <= 0:
+def _pictures(report: Report, policies: list[Policy], library: MotionLibrary, humanoid: Humanoid, out: Path,
+              strip_clips: int, video_clips: int | None) -> tuple[dict[str, list[tuple[str, Path]]], ...]:  # fmt: skip
+    """Filmstrips ({run label: [(clip, png)]}, ``strip_clips`` clips of every run) and MP4 videos ({run label:
+    [(clip, mp4)]}, ``video_clips`` clips of the first run of each learner, None: every clip): the simulated
+    character beside the translucent reference over the evaluation horizon from t = 0. Each rollout is simulated once
+    for both. Adds a note saying why when something could not be rendered."""
+    video_count = library.num_clips if video_clips is None else min(video_clips, library.num_clips)
+    strip_count = min(strip_clips, library.num_clips)
+    if strip_clips <= 0:
         report.notes.append("Filmstrips were not rendered (switched off with --no-render).")
-        return {}
+    if strip_count <= 0 and video_count <= 0:
+        return {}, {}
     backend, why = render.find_backend()
     if backend is None:
-        report.notes.append(f"Filmstrips were not rendered: {why}.")
-        return {}
+        if strip_count > 0:
+            report.notes.append(f"Filmstrips were not rendered: {why}.")
+        if video_count > 0:
+            report.notes.append(f"Videos were not rendered: {why}.")
+        return {}, {}
     strips: dict[str, list[tuple[str, Path]]] = {}
-    for run, policy in zip(report.runs, policies, strict=True):
-        for c in range(min(clips, library.num_clips)):
-            name = library.names[c]
-            png = out / f"filmstrip_{run.label.replace(':', '_').replace('#', '_')}_{name}.png"
-            sim, ref = render.record_rollout(policy, library, humanoid, c, report.protocol.max_frames, report.protocol)
-            try:
-                render.filmstrip(sim, ref, humanoid, png, backend)
-            except (RuntimeError, OSError) as e:
-                report.notes.append(f"Filmstrip of {run.label} on {name} failed: {e}")
-                continue
-            strips.setdefault(run.label, []).append((name, png))
-    return strips
-
-
-def _videos(report: Report, policies: list[Policy], library: MotionLibrary, humanoid: Humanoid, out: Path,
-            clips: int | None) -> dict[str, list[tuple[str, Path]]]:  # fmt: skip
-    """{run label: [(clip, mp4)]} for the first run of each learner: the simulated character beside the translucent
-    reference over the evaluation horizon from t = 0; adds a note saying why when nothing could be rendered."""
-    count = library.num_clips if clips is None else min(clips, library.num_clips)
-    if count <= 0:
-        return {}
-    backend, why = render.find_backend()
-    if backend is None:
-        report.notes.append(f"Videos were not rendered: {why}.")
-        return {}
     videos: dict[str, list[tuple[str, Path]]] = {}
-    seen: set[str] = set()
+    filmed: set[str] = set()
     fps = humanoid.physics.control_hz
     for run, policy in zip(report.runs, policies, strict=True):
-        if run.learner in seen:
-            continue
-        seen.add(run.learner)
-        for c in range(count):
+        n_video = 0 if run.learner in filmed else video_count
+        filmed.add(run.learner)
+        stem = run.label.replace(":", "_").replace("#", "_")
+        for c in range(max(strip_count, n_video)):
             name = library.names[c]
-            mp4 = out / f"video_{run.label.replace(':', '_').replace('#', '_')}_{name}.mp4"
             sim, ref = render.record_rollout(policy, library, humanoid, c, report.protocol.max_frames, report.protocol)
-            try:
-                render.video(sim, ref, humanoid, mp4, backend, fps)
-            except (RuntimeError, OSError) as e:
-                report.notes.append(f"Video of {run.label} on {name} failed: {e}")
-                continue
-            videos.setdefault(run.label, []).append((name, mp4))
-    return videos
+            if c < strip_count:
+                png = out / f"filmstrip_{stem}_{name}.png"
+                try:
+                    render.filmstrip(sim, ref, humanoid, png, backend)
+                    strips.setdefault(run.label, []).append((name, png))
+                except (RuntimeError, OSError) as e:
+                    report.notes.append(f"Filmstrip of {run.label} on {name} failed: {e}")
+            if c < n_video:
+                mp4 = out / f"video_{stem}_{name}.mp4"
+                try:
+                    render.video(sim, ref, humanoid, mp4, backend, fps)
+                    videos.setdefault(run.label, []).append((name, mp4))
+                except (RuntimeError, OSError) as e:
+                    report.notes.append(f"Video of {run.label} on {name} failed: {e}")
+    return strips, videos
 
 
 def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]],
