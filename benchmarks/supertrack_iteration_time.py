@@ -17,7 +17,8 @@ at all (updates only, on the warmed buffer: the learner's own pace), and the run
     .venv/bin/python benchmarks/supertrack_iteration_time.py --configs configs/supertrack/default.yaml --eager-too
 
 ``--eager-too`` also measures each config with ``world_model.compile`` and ``policy.compile`` off, ``--bf16-too``
-with ``world_model.bf16`` and ``policy.bf16`` on, and prints the ratios.
+with ``world_model.bf16`` and ``policy.bf16`` on, ``--concurrent-too`` with ``policy.concurrent`` on (the policy
+step in a second thread beside W's steps: one run on both cores), and prints the ratios.
 """
 
 from __future__ import annotations
@@ -96,6 +97,8 @@ def main() -> None:
                         help="config override applied to every config (repeatable)")  # fmt: skip
     parser.add_argument("--eager-too", action="store_true", help="also measure each config uncompiled; print the ratio")
     parser.add_argument("--bf16-too", action="store_true", help="also measure each config in bf16; print the ratio")
+    parser.add_argument("--concurrent-too", action="store_true",
+                        help="also measure each config with policy.concurrent (policy beside W); print the ratio")
     parser.add_argument("--processes", type=int, default=0, metavar="K",
                         help="also measure with K collector processes, against updates only (0: not)")  # fmt: skip
     args = parser.parse_args()
@@ -106,6 +109,7 @@ def main() -> None:
         variants = [("", args.overrides)]
         variants += [(" eager", [*args.overrides, *eager])] if args.eager_too else []
         variants += [(" bf16", [*args.overrides, *bf16])] if args.bf16_too else []
+        variants += [(" concurrent", [*args.overrides, "policy.concurrent=true"])] if args.concurrent_too else []
         first = 0.0
         for label, overrides in variants:
             base = measure(config, args.iterations, args.device, ["collect.processes=0", *overrides],

@@ -130,6 +130,10 @@ class PolicyConfig:
             :class:`common.train.averaging.WeightAverage`) that evaluation, the report and export use instead of the
             live weights; the gym still acts with the live ones. 0 (the paper): no average, the live weights are
             evaluated.
+        concurrent: Run the policy step in a second thread beside the iteration's W steps, through a copy of W taken
+            at the start of the iteration (so the policy learns through W one iteration old; the paper's loop and
+            the default step them one after the other, through the newest W). Uses a second core for the updates;
+            with ``torch_threads`` 1 each step runs on its own core.
     """
 
     hidden: tuple[int, ...] = (1024, 1024, 1024, 1024, 1024)
@@ -147,6 +151,7 @@ class PolicyConfig:
     bf16: bool = False
     step_decay: float = 1.0
     average_decay: float = 0.0
+    concurrent: bool = False
 
     def __post_init__(self) -> None:
         if self.window < 1 or self.batch < 1 or not self.hidden:

@@ -22,6 +22,7 @@ import os
 import shutil
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -99,6 +100,15 @@ class SuperTrackLearner:
         self.policy_net = Policy(n_joints, cfg.policy.hidden, local_norm, cfg.policy.init_scale,
                                  root_offset=cfg.policy.root_offset, revolute=revolute).to(self.device)  # fmt: skip
         self.steps = _steps(cfg)
+        # The W the policy learns through. With policy.concurrent it is a copy of W taken at the start of every
+        # update (sharing the Local() normaliser, which never changes), so that the policy step can run in a second
+        # thread while W's steps change W itself; otherwise W itself.
+        self.policy_world = self.world_model
+        self._world_thread: ThreadPoolExecutor | None = None
+        if cfg.policy.concurrent:
+            self.policy_world = copy.deepcopy(self.world_model, memo={id(local_norm): local_norm})
+            self.policy_world.requires_grad_(False)
+            self._world_thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="world-model-steps")
         self.world_optimizer = torch.optim.RAdam(self.world_model.parameters(), lr=cfg.world_model.lr)
         self.policy_optimizer = torch.optim.RAdam(self.policy_net.parameters(), lr=cfg.policy.lr)
         self._new_guards()
@@ -160,19 +170,51 @@ class SuperTrackLearner:
             self.val_buffer.push(**{k: v[n_train:] for k, v in frame.items()})
 
     def update(self) -> dict[str, float]:
-        """World-model step(s) then one policy step (the policy trains through the just-updated W)."""
-        start = time.perf_counter()
-        for _ in range(self.cfg.world_model.steps_per_iteration):
-            metrics = self._world_model_step()
-        middle = time.perf_counter()
-        if self.updates >= self.cfg.policy.start_iteration:
-            metrics.update(self._policy_step())
+        """World-model step(s) then one policy step: the policy trains through the just-updated W, or with
+        ``policy.concurrent`` through W as it was before this update's W steps, in a second thread beside them.
+
+        Every window and the noise are drawn first, in the same order either way, so that the two modes read the
+        same data and the serial mode is the plain sequence of steps."""
+        c = self.cfg
+        w_windows = [self._sample_windows("w", c.world_model.batch, c.world_model.window)
+                     for _ in range(c.world_model.steps_per_iteration)]  # fmt: skip
+        policy_input = None
+        if self.updates >= c.policy.start_iteration:
+            windows = self._sample_windows("policy", c.policy.batch, c.policy.window)
+            noise = c.policy.sigma * torch.randn(windows["kin_next_joint_rot"].shape[:-1] + (3,), device=self.device)
+            policy_input = (windows, noise)
+        if self._world_thread is None:
+            metrics = self._world_model_steps(w_windows)
+            metrics.update(self._timed_policy_step(policy_input))
+        else:
+            with torch.no_grad():
+                for mine, live in zip(self.policy_world.state_dict().values(),
+                                      self.world_model.state_dict().values(), strict=True):  # fmt: skip
+                    mine.copy_(live)
+            world = self._world_thread.submit(self._world_model_steps, w_windows)
+            try:
+                policy_metrics = self._timed_policy_step(policy_input)
+            finally:
+                metrics = world.result()  # W's thread finishes before anything else happens (or re-raises here)
+            metrics.update(policy_metrics)
         self.updates += 1
-        metrics["perf/world_model_step_s"] = middle - start
-        metrics["perf/policy_step_s"] = time.perf_counter() - middle
         metrics.update(self._pop_charts())
         if self.updates % self.cfg.train.log_every == 0:
             metrics.update(self._pop_rates())
+        return metrics
+
+    def _world_model_steps(self, windows: list[dict[str, np.ndarray]]) -> dict[str, float]:
+        start = time.perf_counter()
+        metrics: dict[str, float] = {}
+        for w in windows:
+            metrics = self._world_model_step(w)
+        metrics["perf/world_model_step_s"] = time.perf_counter() - start
+        return metrics
+
+    def _timed_policy_step(self, policy_input: tuple[dict[str, np.ndarray], torch.Tensor] | None) -> dict[str, float]:
+        start = time.perf_counter()
+        metrics = {} if policy_input is None else self._policy_step(*policy_input)
+        metrics["perf/policy_step_s"] = time.perf_counter() - start
         return metrics
 
     def policy(self) -> EvalPolicy:
@@ -253,6 +295,8 @@ class SuperTrackLearner:
 
     def close(self) -> None:
         self.collector.close()
+        if self._world_thread is not None:
+            self._world_thread.shutdown()
 
     # Training steps -----------------------------------------------------------------------------------------
 
@@ -272,7 +316,8 @@ class SuperTrackLearner:
         sim0 = BodyState.unpack(self._tensor(windows["sim"][:, 0]))
         kin_next = BodyState.unpack(self._tensor(windows["kin_next"]))
         kin_rot = self._tensor(windows["kin_next_joint_rot"])
-        rollout = policy_rollout(self.policy_net, self.world_model, sim0, kin_next, kin_rot, noise, c.alpha, self.steps)
+        rollout = policy_rollout(self.policy_net, self.policy_world, sim0, kin_next, kin_rot, noise, c.alpha,
+                                 self.steps)
         return policy_loss(rollout.predicted, kin_next, rollout.offsets, c.weights, c.step_decay)
 
     def warm_up(self) -> None:
@@ -297,19 +342,24 @@ class SuperTrackLearner:
             module.zero_grad(set_to_none=True)
         torch.set_rng_state(rng_state)
 
-    def _world_model_step(self) -> dict[str, float]:
+    def _sample_windows(self, reader: str, batch: int, window: int) -> dict[str, np.ndarray]:
+        """``batch`` training windows of ``window`` frames, counted as read by ``reader`` (w or policy)."""
+        windows = self.train_buffer.sample_windows(batch, window, self.rng)
+        self._count_reads(reader, windows["collected_at"])
+        return windows
+
+    def _world_model_step(self, windows: dict[str, np.ndarray] | None = None) -> dict[str, float]:
+        """One W step on ``windows`` (default: drawn here)."""
         c = self.cfg.world_model
-        windows = self.train_buffer.sample_windows(c.batch, c.window, self.rng)
-        self._count_reads("w", windows["collected_at"])
+        if windows is None:
+            windows = self._sample_windows("w", c.batch, c.window)
         loss, metrics = self.world_model_loss(windows)
         return self._optimize("world_model", loss, metrics, self.world_model, self.world_optimizer,
                               self.world_guard, c.grad_clip, _batch_stats(windows["sim"]))  # fmt: skip
 
-    def _policy_step(self) -> dict[str, float]:
+    def _policy_step(self, windows: dict[str, np.ndarray], noise: torch.Tensor) -> dict[str, float]:
+        """One policy step on ``windows`` with exploration ``noise`` (B, L, J, 3)."""
         c = self.cfg.policy
-        windows = self.train_buffer.sample_windows(c.batch, c.window, self.rng)
-        self._count_reads("policy", windows["collected_at"])
-        noise = c.sigma * torch.randn(windows["kin_next_joint_rot"].shape[:-1] + (3,), device=self.device)
         loss, metrics = self.policy_loss(windows, noise)
         out = self._optimize("policy", loss, metrics, self.policy_net, self.policy_optimizer,
                              self.policy_guard, c.grad_clip, _batch_stats(windows["sim"][:, 0]))  # fmt: skip
