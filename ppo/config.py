@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from common.sim.gym import GymConfig
+from common.sim.observation import ObservationConfig
 from common.sim.rewards import RewardConfig, TerminationConfig
 from common.train.training import TrainConfig
 
@@ -118,33 +119,13 @@ class PPOConfig:
 
 
 @dataclass(frozen=True)
-class ObservationConfig:
-    """What the policy and the value function see (:mod:`ppo.observation`).
-
-    Attributes:
-        kind: ``parc`` (simulated-minus-reference features in the simulated root's heading frame, and future
-            reference frames) or ``local`` (Local() of both characters, the reference root one frame ahead, phase).
-        future_frames: ``parc``: offsets k (control steps) of the reference frames t + k dt observed, increasing;
-            the first one also gives the velocity errors.
-    """
-
-    kind: Literal["parc", "local"] = "parc"
-    future_frames: tuple[int, ...] = (1, 2, 4, 8, 16)
-
-    def __post_init__(self) -> None:
-        k = self.future_frames
-        if not k or min(k) < 1 or list(k) != sorted(set(k)):
-            raise ValueError(f"future_frames must be distinct positive offsets in increasing order, got {list(k)}")
-
-
-@dataclass(frozen=True)
 class NormalizerConfig:
     """Running mean/std of the observation.
 
     Attributes:
         clip: Normalised features are clipped to [-clip, clip].
         epsilon: Floor of the standard deviation (features that never vary are only centred).
-        exclude: Observation features (names from :mod:`ppo.observation`) left as they are because they are
+        exclude: Observation features (names from :mod:`common.sim.observation`) left as they are because they are
             already bounded, e.g. the ``local`` observation's ``phase`` (sin and cos).
         max_samples: Stop updating the statistics after this many samples (MimicKit's normalizer_samples); None:
             update throughout training. Evaluation always uses frozen statistics.

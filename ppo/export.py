@@ -15,12 +15,12 @@ import torch
 from common.character.humanoid import Humanoid
 from common.motion.library import MotionLibrary
 from common.sim.gym import StepResult
+from common.sim.observation import Observer
 from common.train.evaluate import Policy
 from common.train.run import load_run_checkpoint
 from ppo.config import PPOTrackerConfig
 from ppo.networks import ActorCritic
 from ppo.normalizer import RunningNormalizer
-from ppo.observation import Observer
 
 
 def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, library: MotionLibrary) -> Policy:

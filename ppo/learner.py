@@ -1,6 +1,6 @@
 """The PPO tracker as a :class:`common.train.training.Learner`: one iteration = collect() a rollout, update() on it.
 
-collect(): ``rollout_length`` gym steps of N characters. Each step observes the state (:mod:`ppo.observation`),
+collect(): ``rollout_length`` gym steps of N characters. Each step observes the state (:mod:`common.sim.observation`),
 updates the normaliser's statistics, samples a ~ N(mu, sigma) and sends PD targets = reference hinge angles of the
 next frame + action_scale * clip(a); the row pushed to the cyclic buffer holds the normalised observation, the
 action, its log-probability, V(s), the reward, the done flags and, for truncated episodes, V of the state the step
@@ -22,6 +22,7 @@ from common.character.humanoid import Humanoid
 from common.motion.library import MotionLibrary
 from common.sim.buffer import CyclicBuffer
 from common.sim.gym import StepResult, TrackingGym
+from common.sim.observation import Observer
 from common.train.evaluate import Policy
 from common.train.training import NanGuard, gym_config
 from ppo.config import PPOTrackerConfig
@@ -29,8 +30,7 @@ from ppo.gae import gae
 from ppo.losses import ppo_loss
 from ppo.motion_weights import MotionWeights
 from ppo.networks import ActorCritic
-from ppo.normalizer import RunningNormalizer
-from ppo.observation import Observer, normalized_mask
+from ppo.normalizer import RunningNormalizer, normalized_mask
 
 _LOG_CLIP_LIMIT = 20  # clips whose failure rates are logged one by one
 

@@ -7,6 +7,7 @@ others (already bounded features such as the phase's sin/cos) as they are. Stati
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -83,3 +84,20 @@ class RunningNormalizer:
         self.count = int(state["count"])
         self.mean = np.asarray(state["mean"], dtype=np.float64).copy()
         self.var = np.asarray(state["var"], dtype=np.float64).copy()
+
+
+def normalized_mask(layout: dict[str, slice], exclude: Iterable[str]) -> np.ndarray:
+    """True for the observation entries the normaliser standardises (all but the ``exclude`` features).
+
+    Raises:
+        ValueError: If ``exclude`` names an unknown feature.
+    """
+    exclude = tuple(exclude)
+    unknown = sorted(set(exclude) - set(layout))
+    if unknown:
+        raise ValueError(f"normalizer.exclude: unknown observation features {unknown} (known: {list(layout)})")
+    size = max(s.stop for s in layout.values())
+    mask = np.ones(size, dtype=bool)
+    for key in exclude:
+        mask[layout[key]] = False
+    return mask

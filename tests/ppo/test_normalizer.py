@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ppo.normalizer import RunningNormalizer
-from ppo.observation import normalized_mask
+from ppo.normalizer import RunningNormalizer, normalized_mask
 
 
 def test_running_statistics_hand_computed() -> None:

@@ -1,4 +1,5 @@
-"""The PPO tracker's observation: named features, flattened in a fixed order, with their layout.
+"""A tracking policy's observation (the PPO tracker's and the gymnasium wrapper's): named features, flattened in a
+fixed order, with their layout.
 
 ``parc`` (the default; PARC's motion tracker observes simulated-minus-reference features and several future
 reference frames): everything in the simulated root's *heading frame* H (rotated by the root's yaw about +Z, origin
@@ -16,7 +17,9 @@ reference root in the simulated root's frame, the clip phase).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -26,7 +29,26 @@ from common.maths.rotations import quat_conj, quat_from_yaw, quat_mul, quat_rota
 from common.motion.library import MotionLibrary
 from common.sim.features import OBSERVATION_KEYS, tracking_observation
 from common.sim.gym import StepResult
-from ppo.config import ObservationConfig
+
+
+@dataclass(frozen=True)
+class ObservationConfig:
+    """What a tracking policy sees (this module).
+
+    Attributes:
+        kind: ``parc`` (simulated-minus-reference features in the simulated root's heading frame, and future
+            reference frames) or ``local`` (Local() of both characters, the reference root one frame ahead, phase).
+        future_frames: ``parc``: offsets k (control steps) of the reference frames t + k dt observed, increasing;
+            the first one also gives the velocity errors.
+    """
+
+    kind: Literal["parc", "local"] = "parc"
+    future_frames: tuple[int, ...] = (1, 2, 4, 8, 16)
+
+    def __post_init__(self) -> None:
+        k = self.future_frames
+        if not k or min(k) < 1 or list(k) != sorted(set(k)):
+            raise ValueError(f"future_frames must be distinct positive offsets in increasing order, got {list(k)}")
 
 
 def parc_features(sim: CharacterState, refs: Mapping[int, CharacterState], hinge_qpos: np.ndarray,
@@ -117,20 +139,3 @@ class Observer:
 
 def _flat(features: dict[str, np.ndarray]) -> np.ndarray:
     return np.concatenate(list(features.values()), axis=-1)
-
-
-def normalized_mask(layout: dict[str, slice], exclude: Iterable[str]) -> np.ndarray:
-    """True for the observation entries the normaliser standardises (all but the ``exclude`` features).
-
-    Raises:
-        ValueError: If ``exclude`` names an unknown feature.
-    """
-    exclude = tuple(exclude)
-    unknown = sorted(set(exclude) - set(layout))
-    if unknown:
-        raise ValueError(f"normalizer.exclude: unknown observation features {unknown} (known: {list(layout)})")
-    size = max(s.stop for s in layout.values())
-    mask = np.ones(size, dtype=bool)
-    for key in exclude:
-        mask[layout[key]] = False
-    return mask

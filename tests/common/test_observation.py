@@ -12,9 +12,8 @@ from common.maths.rotations import quat_from_yaw, quat_mul, quat_rotate, quat_ya
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
 from common.sim.gym import GymConfig, TrackingGym
+from common.sim.observation import ObservationConfig, Observer, parc_features
 from common.train.config import ConfigError, from_dict
-from ppo.config import ObservationConfig
-from ppo.observation import Observer, parc_features
 
 OFFSETS = (1, 2, 4, 8, 16)
 
