@@ -265,8 +265,13 @@ class Trainer:
                 if self.train_seconds >= next_ckpt:
                     self._save()
                     next_ckpt = self.train_seconds + 60.0 * t.checkpoint_every_minutes
+            # What was gathered since the last log line (a run shorter than log_every: perf/compile_s too) goes into
+            # the last record, with the final evaluation unless the last iteration was just evaluated.
+            final = {k: float(np.nanmean(v)) for k, v in pending.items()}
             if evaluated_at != self.iteration:
-                logger.log(self.iteration, self._evaluate(), self.samples, self.train_seconds)
+                final.update(self._evaluate())
+            if final:
+                logger.log(self.iteration, final, self.samples, self.train_seconds)
             self._save()
         finally:
             progress.close()
