@@ -19,6 +19,7 @@ import time
 import mujoco
 import numpy as np
 import torch
+from gym_throughput import raw_block  # this folder: the script's own
 from mujoco import rollout
 
 from common.character.humanoid import Humanoid
@@ -26,21 +27,6 @@ from common.motion.dataset import load_motions
 from common.train.config import load_config
 from ppo.config import PPOTrackerConfig
 from ppo.learner import PPOLearner
-
-
-def raw_rate(humanoid: Humanoid, state0: np.ndarray, ctrl: np.ndarray, steps: int, pool: rollout.Rollout,
-             datas: list[mujoco.MjData]) -> float:  # fmt: skip
-    """Character-steps per second of bare rollouts (state carried over from control step to control step)."""
-    n, substeps = ctrl.shape[0], ctrl.shape[1]
-    state = state0.copy()
-    out = np.zeros((n, substeps, state.shape[1]))
-    sensor = np.zeros((n, substeps, 0))
-    models = [humanoid.model] * n
-    start = time.perf_counter()
-    for _ in range(steps):
-        pool.rollout(models, datas, state, ctrl, state=out, sensordata=sensor, nstep=substeps, skip_checks=True)
-        state[:] = out[:, -1]
-    return steps * n / (time.perf_counter() - start)
 
 
 def ppo_rate(learner: PPOLearner, iterations: int) -> tuple[float, float, float]:
@@ -84,10 +70,10 @@ def main() -> None:
           f"{cfg.ppo.rollout_length}-step rollouts, {args.iterations} iterations per block", flush=True)  # fmt: skip
     try:
         ppo_rate(learner, 2)  # warm-up: first allocations, first update
-        raw_rate(humanoid, state0, ctrl, 5, pool, datas)
+        raw_block(humanoid, state0, ctrl, 5, pool, datas)
         raws, ppos, collect, update = [], [], 0.0, 0.0
         for k in range(args.repeats):
-            raws.append(raw_rate(humanoid, state0, ctrl, steps, pool, datas))
+            raws.append(n * raw_block(humanoid, state0, ctrl, steps, pool, datas))  # character-steps/s
             rate, c, u = ppo_rate(learner, args.iterations)
             ppos.append(rate)
             collect, update = collect + c, update + u

@@ -1,12 +1,13 @@
-"""``policy.concurrent``: the policy step in a second thread beside W's steps, through W as the update found it."""
+"""``policy.concurrent``: the policy step in a second thread beside W's steps, through W as the update found it.
+
+One torch thread (the autouse fixture of conftest.py, as the Trainer sets train.torch_threads): a reduction split over
+a varying number of threads would change bits."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-import pytest
 import torch
 
 from common.character.humanoid import Humanoid
@@ -16,15 +17,6 @@ from supertrack.config import SuperTrackConfig
 from supertrack.learner import SuperTrackLearner
 
 DEBUG = str(Path(__file__).resolve().parents[2] / "configs" / "supertrack" / "debug.yaml")
-
-
-@pytest.fixture(autouse=True)
-def one_torch_thread() -> Iterator[None]:
-    # As the Trainer sets train.torch_threads: a reduction split over a varying number of threads would change bits.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 def _learner(*overrides: str) -> SuperTrackLearner:
