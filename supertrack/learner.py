@@ -187,10 +187,7 @@ class SuperTrackLearner:
             metrics = self._world_model_steps(w_windows)
             metrics.update(self._timed_policy_step(policy_input))
         else:
-            with torch.no_grad():
-                for mine, live in zip(self.policy_world.state_dict().values(),
-                                      self.world_model.state_dict().values(), strict=True):  # fmt: skip
-                    mine.copy_(live)
+            self.policy_world.load_state_dict(self.world_model.state_dict())  # copies into the same tensors
             world = self._world_thread.submit(self._world_model_steps, w_windows)
             try:
                 policy_metrics = self._timed_policy_step(policy_input)
