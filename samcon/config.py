@@ -66,6 +66,13 @@ class SearchConfig:
         sigma_rate: Learning rate of the deviation towards the elite's (CMA's c_sigma role); 1 copies it.
         mean_carry: Share of the previous segment's final mean that starts the next one (offsets that hold a
             joint against gravity persist from segment to segment).
+        backtrack_segments: When even the cheapest kept sample of a segment has fallen (the evaluator's head rule),
+            the search goes back this many segments and searches them again, each with ``iterations`` more rounds
+            than the last time it was searched (Liu et al. 2010 restart a failed segment from an earlier one too):
+            the greedy one-segment choice cannot see a fall coming, while a wider search a few segments earlier
+            often avoids it. 0: never.
+        max_backtracks: Backtracks per clip at most; past them a fall is kept and the search goes on.
+        max_rounds: Rounds of one segment at most, however often it is searched again.
     """
 
     segment_frames: int = 6
@@ -77,8 +84,13 @@ class SearchConfig:
     sigma_min: float = 0.01
     sigma_rate: float = 0.5
     mean_carry: float = 0.5
+    backtrack_segments: int = 3
+    max_backtracks: int = 20
+    max_rounds: int = 16
 
     def __post_init__(self) -> None:
+        if min(self.backtrack_segments, self.max_backtracks) < 0 or self.max_rounds < self.iterations:
+            raise ValueError("search: need backtrack_segments >= 0, max_backtracks >= 0, max_rounds >= iterations")
         if min(self.segment_frames, self.samples, self.iterations, self.keep, self.elite) < 1:
             raise ValueError("search: segment_frames, samples, iterations, keep and elite must be >= 1")
         if self.keep > self.samples * self.iterations or self.elite > self.samples:

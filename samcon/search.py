@@ -8,8 +8,9 @@ whole segment, ``offset_i = guide(s_i) + mean + sigma * z_i`` with z standard no
 feedback features (``guide`` is 0 unless the search is re-run around linear feedback policies). Each candidate is
 scored by the tracking cost averaged over the segment's frames. After each of ``iterations`` rounds, mean and sigma
 (one per actuator, CMA-style diagonal) move to the log-weighted ``elite`` of the round; the best ``keep`` of all
-rounds are kept. At the end, the lowest-cost kept sample is traced back through its parents: the open-loop
-trajectory.
+rounds are kept. When even the cheapest kept sample has fallen (the evaluator's head rule), the search goes back
+``backtrack_segments`` segments and searches them again with more rounds. At the end, the lowest-cost kept sample
+is traced back through its parents: the open-loop trajectory.
 
 The physics is :class:`common.sim.sim.BatchedSim`, stepped one control step per rollout like the gym, so that the
 trajectory replays bit-exactly in the shared evaluator from the same start state (MuJoCo's solver warm start is
@@ -35,8 +36,8 @@ from samcon.cost import COST_TERMS, feedback_features, tracking_cost
 
 Guide = Callable[[int, np.ndarray], np.ndarray]
 """(segment k, feedback features (n, D)) -> base offsets (n, nu)."""
-Progress = Callable[[int, int, float, float], None]
-"""(segment k, segments, cost of the best kept sample, seconds so far)."""
+Progress = Callable[[int, int, float, float, "int | None"], None]
+"""(segment k, segments, cost of the best kept sample, seconds so far, the segment a backtrack returns to or None)."""
 
 
 @dataclass
@@ -58,6 +59,7 @@ class Trajectory:
         actions: Per segment, their offsets, [(n_k, nu)].
         kept_cost: Per segment, the costs of the samples kept, lowest first, [(keep,)].
         path_features: Feedback features of the chosen path at every segment's start. Shape: (S, D).
+        backtracks: Times the search went back because every kept sample of a segment had fallen.
     """
 
     clip: str
@@ -74,6 +76,7 @@ class Trajectory:
     actions: list[np.ndarray]
     kept_cost: list[np.ndarray]
     path_features: np.ndarray
+    backtracks: int = 0
 
     @property
     def frames(self) -> int:
@@ -126,26 +129,32 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     n, nu, hinge = search.samples, humanoid.nu, humanoid.hinge_qpos
     ref = reference_frames(library, clip, frames)
     bounds = np.append(np.arange(0, frames, search.segment_frames), frames)
+    nseg = len(bounds) - 1
     sim = BatchedSim(humanoid, n, threads, max_speed)
     fk = ForwardKinematics(humanoid, threads)
     start = start_state(library, humanoid, clip, rsi_lift)
-    kept = start[None]
     nq, nv = humanoid.nq, humanoid.nv
-    mean = np.zeros(nu)
     fresh = np.arange(n) >= n - int(round(fresh_share * n))
-    fresh_state = np.zeros_like(kept)
-    history: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]] = []
-    features, actions = [], []
+    fresh_state = np.zeros_like(start[None])
+    # What segment k starts from: the kept states and the previous segment's final mean (a backtrack returns here).
+    kept_at: dict[int, tuple[np.ndarray, np.ndarray]] = {0: (start[None], np.zeros(nu))}
+    rounds_of = np.full(nseg, search.iterations)
+    history: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray]] = []
+    features: list[np.ndarray] = []
+    actions: list[np.ndarray] = []
+    samples = backtracks = 0
+    k = 0
     try:
-        for k in range(len(bounds) - 1):
+        while k < nseg:
             f0, f1 = int(bounds[k]), int(bounds[k + 1])
+            kept, mean = kept_at[k]
             kept_fk = fk(kept[:, 1 : 1 + nq].copy(), kept[:, 1 + nq : 1 + nq + nv].copy())
             kept_feat = feedback_features(humanoid, kept_fk, ref[np.full(len(kept), f0)])
             mean, sigma = search.mean_carry * mean, np.full(nu, search.sigma_init)
             fresh_state[:, 1 : 1 + nq], fresh_state[:, 1 + nq : 1 + nq + nv] = ref.qpos[f0], ref.qvel[f0]
             fresh_feat = feedback_features(humanoid, fk(ref.qpos[f0 : f0 + 1], ref.qvel[f0 : f0 + 1]), ref[[f0]])
             rounds = []
-            for _ in range(search.iterations):
+            for _ in range(int(rounds_of[k])):
                 parent = np.arange(n) % len(kept)
                 starts, feat = kept[parent], kept_feat[parent]
                 starts[fresh], feat[fresh] = fresh_state, fresh_feat
@@ -159,25 +168,38 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
                 mean = w @ noise[elite]
                 spread = np.sqrt(w @ (noise[elite] - mean) ** 2)
                 sigma = np.maximum(search.sigma_min, (1 - search.sigma_rate) * sigma + search.sigma_rate * spread)
+            samples += n * len(rounds)
             parent, offset, c, end, _, feat, was_fresh = (np.concatenate([r[i] for r in rounds]) if i != 4 else None
                                                           for i in range(7))  # fmt: skip
             terms = {key: np.concatenate([r[4][key] for r in rounds]) for key in rounds[0][4]}
             order = np.argsort(c, kind="stable")
             best = order[~was_fresh[order]][: search.keep]
+            if terms["fallen"][best[0]] > 0 and backtracks < search.max_backtracks and search.backtrack_segments > 0:
+                # Even the cheapest sample fell: search the last few segments again, each with more rounds.
+                back = max(0, k - search.backtrack_segments)
+                rounds_of[back : k + 1] = np.minimum(rounds_of[back : k + 1] + search.iterations, search.max_rounds)
+                del history[back:], features[back:], actions[back:]
+                backtracks += 1
+                if progress is not None:
+                    progress(k, nseg, float(c[best[0]]), time.perf_counter() - t0, back)
+                k = back
+                continue
             good = order[: regression_samples][np.isfinite(c[order[:regression_samples]])]
             features.append(feat[good])
             actions.append(offset[good])
             history.append((parent[best], offset[best], c[best], end[best], {k_: v[best] for k_, v in terms.items()},
                             kept_feat[parent[best]]))  # fmt: skip
-            kept = end[best]
+            kept_at[k + 1] = (end[best], mean)
             if progress is not None:
-                progress(k, len(bounds) - 1, float(c[best[0]]), time.perf_counter() - t0)
+                progress(k, nseg, float(c[best[0]]), time.perf_counter() - t0, None)
+            k += 1
     finally:
         sim.close()
         fk.close()
-    samples = n * search.iterations * (len(bounds) - 1)
-    return _trace_back(library.names[clip], start, history, ref, bounds, hinge, samples, time.perf_counter() - t0,
+    traj = _trace_back(library.names[clip], start, history, ref, bounds, hinge, samples, time.perf_counter() - t0,
                        features, actions)  # fmt: skip
+    traj.backtracks = backtracks
+    return traj
 
 
 def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: CostConfig, starts: np.ndarray,

@@ -39,7 +39,7 @@ def save(path: str | Path, control_hz: float, results: list[tuple[Trajectory, np
                     g.create_dataset(f"terms/{name}", data=values)
                 g.create_dataset("gain", data=gain)
                 g.create_dataset("bias", data=bias)
-                g.attrs.update(samples=traj.samples, seconds=traj.seconds)
+                g.attrs.update(samples=traj.samples, seconds=traj.seconds, backtracks=traj.backtracks)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)

@@ -64,8 +64,9 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
     """SAMCON on one clip, the feedback fit, and its refinements; prints progress per segment into ``log``."""
     name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
 
-    def progress(k: int, segments: int, best: float, seconds: float) -> None:
-        print(f"{name} segment {k + 1}/{segments} cost {best:.4g} {seconds:.0f} s", file=log, flush=True)
+    def progress(k: int, segments: int, best: float, seconds: float, back: int | None) -> None:
+        again = "" if back is None else f": every kept sample fell, back to segment {back + 1}"
+        print(f"{name} segment {k + 1}/{segments} cost {best:.4g} {seconds:.0f} s{again}", file=log, flush=True)
 
     fb = cfg.feedback
     common = dict(threads=cfg.train.threads, max_speed=cfg.gym.max_speed, regression_samples=fb.samples,
@@ -83,7 +84,8 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
         # The open-loop trajectory stays the better of the two searches (the policy is anchored on it); the samples
         # and time add up.
         best = again if again.segment_cost.sum() < traj.segment_cost.sum() else traj
-        traj = replace(best, samples=traj.samples + again.samples, seconds=traj.seconds + again.seconds)
+        traj = replace(best, samples=traj.samples + again.samples, seconds=traj.seconds + again.seconds,
+                       backtracks=traj.backtracks + again.backtracks)
         gain, bias = anchored(traj, cfg.feedback, *fit_samples(again, cfg.feedback))
     return traj, gain, bias
 
@@ -102,7 +104,8 @@ def _clip_rows(library: MotionLibrary, results: list[tuple[Trajectory, np.ndarra
     for c, (traj, _, _) in enumerate(results):
         seconds_of_motion = traj.frames * library.dt
         rows[traj.clip] = {
-            "frames": traj.frames, "samples": traj.samples, "minutes": traj.seconds / 60.0,
+            "frames": traj.frames, "samples": traj.samples, "backtracks": traj.backtracks,
+            "minutes": traj.seconds / 60.0,
             "minutes_per_motion_second": traj.seconds / 60.0 / seconds_of_motion,
             "open_loop": {k: float(open_loop.per_clip[k][c]) for k in ("mpjpe_g", "mpjpe_l", "survival")},
             "feedback": {k: float(feedback.per_clip[k][c]) for k in ("mpjpe_g", "mpjpe_l", "survival", "success")},

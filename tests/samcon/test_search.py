@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -109,3 +111,28 @@ def test_fresh_candidates_feed_the_regression_but_are_never_kept(walk) -> None:
     # In the second segment, half the regression rows start on the reference (features ~0), half on kept states.
     fresh = np.abs(traj.features[1]).max(axis=1) < 1e-9
     assert fresh.sum() == 4 and (~fresh).sum() == 4
+
+
+def test_a_fallen_segment_is_searched_again_with_more_rounds(walk) -> None:
+    humanoid, library = walk
+    search = SearchConfig(segment_frames=3, samples=6, iterations=1, keep=2, elite=2, backtrack_segments=1,
+                          max_backtracks=2, max_rounds=3)  # fmt: skip
+    # A head rule of 0 m: every sample "falls" at every frame, so every segment asks for a backtrack.
+    always = CostConfig(fall_head_error=0.0)
+    lines = []
+    traj = samcon(humanoid, library, 0, 6, search, always, np.random.default_rng(4),
+                  progress=lambda k, s, c, t, back: lines.append((k, back)))  # fmt: skip
+    # Segment 1 (k = 0) falls twice and has no segment before it: searched with 1, 2, then 3 rounds (kept, the
+    # backtracks used up); segment 2 keeps its fall with 1 round.
+    assert traj.backtracks == 2
+    assert lines == [(0, 0), (0, 0), (0, None), (1, None)]
+    assert traj.samples == 6 * (1 + 2 + 3) + 6 * 1
+    assert len(traj.kept_cost[0]) == 2 and traj.segment_terms["fallen"].min() > 0
+    states = replay(humanoid, traj.start_state, traj.targets)
+    np.testing.assert_array_equal(states[traj.bounds[1:] - 1], traj.end_states)
+    # Where nothing falls, backtracking changes nothing: the same draws, the same trajectory.
+    never = CostConfig(fall_head_error=10.0)
+    on = samcon(humanoid, library, 0, 6, search, never, np.random.default_rng(5))
+    off = samcon(humanoid, library, 0, 6, replace(search, backtrack_segments=0), never, np.random.default_rng(5))
+    assert on.backtracks == off.backtracks == 0
+    np.testing.assert_array_equal(on.targets, off.targets)
