@@ -140,6 +140,11 @@ class FeedbackConfig:
         fresh_share: Share of the candidates started on the reference state at their segment's start, as an
             evaluation episode starts, so that the regression also sees the states the policy is started from (they
             never become kept states). 0: the plain search.
+        starts: Extra searches for the regression, each from the reference state at another segment-aligned frame of
+            the clip's first cycle (drawn with the run's seed), tracking to the same last frame: an evaluation
+            episode starts on the reference at some phase, a state the search from frame 0 has drifted away from
+            by then, and a regression on that search's samples alone has seen nothing like it. Their samples join
+            the regression of the segments they cover; their time is reported apart from the oracle's.
         refine_iterations: Re-runs of SAMCON sampling around the current policies, each followed by a refit.
         refine_sigma: Offset deviation (rad) of those re-runs.
     """
@@ -148,10 +153,13 @@ class FeedbackConfig:
     ridge: float = 0.1
     anchor: Literal["mean", "path"] = "path"
     fresh_share: float = 0.0
+    starts: int = 0
     refine_iterations: int = 0
     refine_sigma: float = 0.05
 
     def __post_init__(self) -> None:
+        if self.starts < 0:
+            raise ValueError(f"feedback.starts must be >= 0, got {self.starts}")
         if self.samples < 2 or self.ridge < 0 or self.refine_iterations < 0 or self.refine_sigma <= 0:
             raise ValueError("feedback: need samples >= 2, ridge >= 0, refine_iterations >= 0, refine_sigma > 0")
         if not 0 <= self.fresh_share <= 0.5:

@@ -47,9 +47,10 @@ class Trajectory:
     Attributes:
         clip: Clip name.
         start_state: The full MuJoCo state it starts from (the gym's reset at t = 0). Shape: (nstate,).
-        targets: Absolute PD targets of every control step. Shape: (F, nu).
+        targets: Absolute PD targets of every control step from ``bounds[0]``. Shape: (F - bounds[0], nu).
         offsets: The chosen offset of every segment (on the reference's next-frame hinge angles). Shape: (S, nu).
-        bounds: First frame of every segment and F. Shape: (S + 1,).
+        bounds: First frame of every segment and the last frame F (the first is 0 unless the search started later).
+            Shape: (S + 1,).
         segment_cost: Tracking cost of the chosen sample in every segment. Shape: (S,).
         segment_terms: Its unweighted cost terms (mean over the segment), {name: (S,)}; ``fallen``: frames fallen.
         end_states: Full state of the chosen sample at every segment's end. Shape: (S, nstate).
@@ -60,6 +61,8 @@ class Trajectory:
         kept_cost: Per segment, the costs of the samples kept, lowest first, [(keep,)].
         path_features: Feedback features of the chosen path at every segment's start. Shape: (S, D).
         backtracks: Times the search went back because every kept sample of a segment had fallen.
+        feedback_seconds: Wall-clock of the extra searches for the feedback regression (``feedback.starts``).
+        feedback_samples: Candidates they simulated.
     """
 
     clip: str
@@ -77,10 +80,13 @@ class Trajectory:
     kept_cost: list[np.ndarray]
     path_features: np.ndarray
     backtracks: int = 0
+    feedback_seconds: float = 0.0
+    feedback_samples: int = 0
 
     @property
     def frames(self) -> int:
-        return int(self.bounds[-1])
+        """Control steps tracked (from the first segment's start)."""
+        return int(self.bounds[-1] - self.bounds[0])
 
 
 def horizon(library: MotionLibrary, clip: int, max_frames: int) -> int:
@@ -88,11 +94,12 @@ def horizon(library: MotionLibrary, clip: int, max_frames: int) -> int:
     return int(max_frames if library.loop[clip] else min(max_frames, library.num_frames[clip] - 1))
 
 
-def start_state(library: MotionLibrary, humanoid: Humanoid, clip: int, rsi_lift: bool = False) -> np.ndarray:
-    """The full MuJoCo state the gym resets clip ``clip`` to at t = 0. Shape: (nstate,)."""
+def start_state(library: MotionLibrary, humanoid: Humanoid, clip: int, rsi_lift: bool = False,
+                time: float = 0.0) -> np.ndarray:  # fmt: skip
+    """The full MuJoCo state the gym resets clip ``clip`` to at ``time`` (s). Shape: (nstate,)."""
     gym = TrackingGym(GymConfig(num_envs=1, threads=1, physics=humanoid.physics, rsi_lift=rsi_lift), library, humanoid)
     try:
-        gym.reset(clips=np.array([clip]), times=np.array([0.0]))
+        gym.reset(clips=np.array([clip]), times=np.array([time]))
         return gym.sim.state[0].copy()
     finally:
         gym.close()
@@ -114,7 +121,7 @@ def _log_weights(n: int) -> np.ndarray:
 def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, search: SearchConfig,
            cost: CostConfig, rng: np.random.Generator, *, threads: int = 1, max_speed: float = 1000.0,
            guide: Guide | None = None, regression_samples: int = 60, fresh_share: float = 0.0,
-           rsi_lift: bool = False, progress: Progress | None = None) -> Trajectory:  # fmt: skip
+           rsi_lift: bool = False, progress: Progress | None = None, start_frame: int = 0) -> Trajectory:  # fmt: skip
     """Tracks the first ``frames`` control steps of clip ``clip`` from its start (see the module docstring).
 
     Args:
@@ -124,15 +131,22 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
             of a kept state (as an evaluation episode starts): they enter the regression only, never the kept states
             (the trajectory must be continuous) nor the distribution update.
         rsi_lift: The gym's start lift (must match the evaluator's).
+        start_frame: Start on the reference state of this frame (a multiple of ``segment_frames``, so that the
+            segments are those of a search from frame 0) and track to frame ``frames``: the feedback regression's
+            samples from states a search from the clip's start never visits.
     """
+    if start_frame % search.segment_frames or not 0 <= start_frame < frames:
+        raise ValueError(f"start_frame {start_frame} must be a multiple of segment_frames below {frames}")
     t0 = time.perf_counter()
     n, nu, hinge = search.samples, humanoid.nu, humanoid.hinge_qpos
     ref = reference_frames(library, clip, frames)
-    bounds = np.append(np.arange(0, frames, search.segment_frames), frames)
+    bounds = np.append(np.arange(start_frame, frames, search.segment_frames), frames)
     nseg = len(bounds) - 1
     sim = BatchedSim(humanoid, n, threads, max_speed)
     fk = ForwardKinematics(humanoid, threads)
-    start = start_state(library, humanoid, clip, rsi_lift)
+    # The start time as the gym reaches frame start_frame from 0 (previous time + dt), as reference_frames does.
+    start = start_state(library, humanoid, clip, rsi_lift, 0.0 if start_frame == 0 else (start_frame - 1) * library.dt
+                        + library.dt)  # fmt: skip
     nq, nv = humanoid.nq, humanoid.nv
     fresh = np.arange(n) >= n - int(round(fresh_share * n))
     fresh_state = np.zeros_like(start[None])
@@ -243,8 +257,7 @@ def _trace_back(name: str, start: np.ndarray, history: list, ref: CharacterState
         j = int(history[k][0][j])
     offsets = np.stack([history[k][1][chosen[k]] for k in range(nseg)])
     per_frame = np.repeat(offsets, np.diff(bounds), axis=0)
-    frames = int(bounds[-1])
-    targets = ref.qpos[1 : frames + 1][:, hinge] + per_frame
+    targets = ref.qpos[int(bounds[0]) + 1 : int(bounds[-1]) + 1][:, hinge] + per_frame
     return Trajectory(
         clip=name, start_state=start, targets=targets, offsets=offsets, bounds=bounds,
         segment_cost=np.array([history[k][2][chosen[k]] for k in range(nseg)]),

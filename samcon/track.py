@@ -41,15 +41,41 @@ from samcon.search import Trajectory, horizon, samcon
 LEARNER = "samcon"
 
 
-def fit_policies(traj: Trajectory, config: FeedbackConfig) -> tuple[np.ndarray, np.ndarray]:
+def fit_policies(traj: Trajectory, config: FeedbackConfig,
+                 extra: Sequence[Trajectory] = ()) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """One linear map per segment from its regression samples: gain (S, nu, D), bias (S, nu)."""
-    return anchored(traj, config, *fit_samples(traj, config))
+    return anchored(traj, config, *fit_samples(traj, config, extra))
 
 
-def fit_samples(traj: Trajectory, config: FeedbackConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The lectures' regression on every segment's samples: gain (S, nu, D), bias (S, nu)."""
-    fits = [fit_linear(s, a, config.ridge) for s, a in zip(traj.features, traj.actions, strict=True)]
+def fit_samples(traj: Trajectory, config: FeedbackConfig,
+                extra: Sequence[Trajectory] = ()) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The lectures' regression on every segment's samples: gain (S, nu, D), bias (S, nu).
+
+    ``extra`` are searches started later in the clip (``feedback.starts``) on the same segment grid: their samples of
+    a segment join ``traj``'s in that segment's regression.
+    """
+    fits = []
+    for k, (s, a) in enumerate(zip(traj.features, traj.actions, strict=True)):
+        for e in extra:
+            j = k - pooled_offset(traj, e)
+            if 0 <= j < len(e.features):
+                s, a = np.concatenate([s, e.features[j]]), np.concatenate([a, e.actions[j]])
+        fits.append(fit_linear(s, a, config.ridge))
     return np.stack([m for m, _ in fits]), np.stack([b for _, b in fits])
+
+
+def pooled_offset(traj: Trajectory, later: Trajectory) -> int:
+    """Segments of ``traj`` before ``later``'s first (both on one grid from frame 0)."""
+    return int(np.searchsorted(traj.bounds, later.bounds[0]))
+
+
+def extra_starts(library: MotionLibrary, clip: int, frames: int, segment_frames: int, count: int,
+                 rng: np.random.Generator) -> list[int]:  # fmt: skip
+    """``count`` distinct segment-aligned start frames after 0, drawn within the clip's first cycle (loop clips) or
+    the tracked range (one-shot clips), where the evaluator's episodes start; none left: fewer."""
+    span = int(np.ceil(library.duration[clip] / library.dt - 1e-9)) if library.loop[clip] else frames
+    grid = np.arange(segment_frames, min(span, frames), segment_frames)
+    return sorted(int(f) for f in rng.choice(grid, size=min(count, len(grid)), replace=False))
 
 
 def anchored(traj: Trajectory, config: FeedbackConfig, gain: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -72,7 +98,13 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
     common = dict(threads=cfg.train.threads, max_speed=cfg.gym.max_speed, regression_samples=fb.samples,
                   fresh_share=fb.fresh_share, rsi_lift=cfg.train.eval.rsi_lift, progress=progress)  # fmt: skip
     traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng, **common)
-    gain, bias = fit_policies(traj, cfg.feedback)
+    extra = []
+    for first in extra_starts(library, clip, frames, cfg.search.segment_frames, fb.starts, rng):
+        print(f"{name}: a search from frame {first} for the feedback regression", file=log, flush=True)
+        extra.append(samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng, start_frame=first, **common))
+    feedback_seconds = sum(e.seconds for e in extra)
+    feedback_samples = sum(e.samples for e in extra)
+    gain, bias = fit_policies(traj, cfg.feedback, extra)
     around = replace(cfg.search, sigma_init=cfg.feedback.refine_sigma, mean_carry=0.0)
     for _ in range(cfg.feedback.refine_iterations):
         g, b = gain, bias
@@ -86,7 +118,9 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
         best = again if again.segment_cost.sum() < traj.segment_cost.sum() else traj
         traj = replace(best, samples=traj.samples + again.samples, seconds=traj.seconds + again.seconds,
                        backtracks=traj.backtracks + again.backtracks)
-        gain, bias = anchored(traj, cfg.feedback, *fit_samples(again, cfg.feedback))
+        gain, bias = anchored(traj, cfg.feedback, *fit_samples(again, cfg.feedback, extra))
+    # The oracle's minutes are the open-loop search's; the feedback's extra searches are counted apart.
+    traj.feedback_seconds, traj.feedback_samples = feedback_seconds, feedback_samples
     return traj, gain, bias
 
 
@@ -105,7 +139,8 @@ def _clip_rows(library: MotionLibrary, results: list[tuple[Trajectory, np.ndarra
         seconds_of_motion = traj.frames * library.dt
         rows[traj.clip] = {
             "frames": traj.frames, "samples": traj.samples, "backtracks": traj.backtracks,
-            "minutes": traj.seconds / 60.0,
+            "minutes": traj.seconds / 60.0, "feedback_search_minutes": traj.feedback_seconds / 60.0,
+            "feedback_search_samples": traj.feedback_samples,
             "minutes_per_motion_second": traj.seconds / 60.0 / seconds_of_motion,
             "open_loop": {k: float(open_loop.per_clip[k][c]) for k in ("mpjpe_g", "mpjpe_l", "survival")},
             "feedback": {k: float(feedback.per_clip[k][c]) for k in ("mpjpe_g", "mpjpe_l", "survival", "success")},

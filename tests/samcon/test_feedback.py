@@ -40,3 +40,26 @@ def test_segment_of_a_frame() -> None:
     assert [segment_of(plan, f, None) for f in (0, 5, 6, 17, 30)] == [0, 0, 1, 2, 2]
     # Loop of 12 frames, tracked to 18: frame 20 is frame 8 a cycle earlier, frame 41 frame 17 two cycles earlier.
     assert segment_of(plan, 20, 12) == 1 and segment_of(plan, 41, 12) == 2
+
+
+def test_a_later_search_joins_the_regression_of_the_segments_it_covers() -> None:
+    from types import SimpleNamespace
+
+    from samcon.config import FeedbackConfig
+    from samcon.track import fit_samples
+
+    rng = np.random.default_rng(2)
+    gain = rng.normal(size=(3, 2, 4))  # a known map per segment of a 3-segment grid from frame 0
+    # The search from frame 0 visits too few distinct states to pin segment 1's map down (2 states in 4-D) ...
+    s_main = [np.zeros((5, 4)), np.repeat(rng.normal(size=(2, 4)), 5, axis=0), rng.normal(size=(40, 4))]
+    main = SimpleNamespace(bounds=np.array([0, 6, 12, 18]), features=s_main,
+                           actions=[s @ g.T for s, g in zip(s_main, gain, strict=True)])  # fmt: skip
+    # ... a search from frame 6 (segments 1 and 2 of the grid) adds states that do.
+    s_later = [rng.normal(size=(40, 4)), rng.normal(size=(40, 4))]
+    later = SimpleNamespace(bounds=np.array([6, 12, 18]), features=s_later,
+                            actions=[s @ g.T for s, g in zip(s_later, gain[1:], strict=True)])  # fmt: skip
+    cfg = FeedbackConfig(ridge=0.0)
+    alone, _ = fit_samples(main, FeedbackConfig(ridge=1e-6))
+    pooled, _ = fit_samples(main, cfg, [later])
+    assert np.abs(alone[1] - gain[1]).max() > 0.1
+    np.testing.assert_allclose(pooled[1:], gain[1:], atol=1e-9)

@@ -136,3 +136,22 @@ def test_a_fallen_segment_is_searched_again_with_more_rounds(walk) -> None:
     off = samcon(humanoid, library, 0, 6, replace(search, backtrack_segments=0), never, np.random.default_rng(5))
     assert on.backtracks == off.backtracks == 0
     np.testing.assert_array_equal(on.targets, off.targets)
+
+
+def test_a_search_from_a_later_frame_starts_on_that_reference_state_and_replays(walk) -> None:
+    humanoid, library = walk
+    search = SearchConfig(segment_frames=3, samples=6, iterations=1, keep=2, elite=2)
+    later = samcon(humanoid, library, 0, 12, search, CostConfig(), np.random.default_rng(6), start_frame=6)
+    np.testing.assert_array_equal(later.bounds, [6, 9, 12])
+    assert later.frames == 6 and later.targets.shape == (6, humanoid.nu) and len(later.features) == 2
+    # The start is the gym's reset to frame 6's time: the reference pose of frame 6.
+    ref = reference_frames(library, 0, 12)
+    np.testing.assert_allclose(later.start_state[1 : 1 + humanoid.nq], ref.qpos[6], atol=1e-12)
+    np.testing.assert_allclose(later.targets[:3] - ref.qpos[7:10, humanoid.hinge_qpos], later.offsets[[0, 0, 0]],
+                               atol=1e-12)  # fmt: skip
+    states = replay(humanoid, later.start_state, later.targets)
+    np.testing.assert_array_equal(states[later.bounds[1:] - later.bounds[0] - 1], later.end_states)
+    # Its first segment's samples all start on the reference itself: feedback features 0.
+    np.testing.assert_allclose(later.features[0], 0.0, atol=1e-9)
+    with pytest.raises(ValueError, match="multiple of segment_frames"):
+        samcon(humanoid, library, 0, 12, search, CostConfig(), np.random.default_rng(6), start_frame=4)

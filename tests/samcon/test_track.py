@@ -31,7 +31,10 @@ def test_debug_run_writes_its_run_directory(run: Path) -> None:
     walk = results["clips"]["walk"]
     # Two segments of 3 frames, 8 samples x 2 rounds each, plus one refinement search of the same size.
     assert walk["frames"] == 6 and walk["samples"] == 2 * 2 * 8 * 2 == info["samples"]
+    # The feedback's extra search from frame 3 (the only other segment start): one segment, counted apart.
+    assert walk["feedback_search_samples"] == 1 * 2 * 8 and walk["feedback_search_minutes"] > 0
     log = (run / "progress.log").read_text()
+    assert "walk: a search from frame 3 for the feedback regression" in log
     assert "walk segment 1/2" in log and "walk segment 2/2" in log
 
 
