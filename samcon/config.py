@@ -73,6 +73,10 @@ class SearchConfig:
             often avoids it. 0: never.
         max_backtracks: Backtracks per clip at most; past them a fall is kept and the search goes on.
         max_rounds: Rounds of one segment at most, however often it is searched again.
+        lookahead_frames: Frames each candidate plays on past its segment, holding its offset, whose mean cost
+            (times ``lookahead_weight``) joins its own: the greedy choice then sees a little of what a state leads
+            to. 0: off (the plain SAMCON cost).
+        lookahead_weight: Weight of that look-ahead cost.
     """
 
     segment_frames: int = 6
@@ -87,8 +91,12 @@ class SearchConfig:
     backtrack_segments: int = 3
     max_backtracks: int = 20
     max_rounds: int = 16
+    lookahead_frames: int = 0
+    lookahead_weight: float = 1.0
 
     def __post_init__(self) -> None:
+        if min(self.lookahead_frames, self.lookahead_weight) < 0:
+            raise ValueError("search: need lookahead_frames >= 0 and lookahead_weight >= 0")
         if min(self.backtrack_segments, self.max_backtracks) < 0 or self.max_rounds < self.iterations:
             raise ValueError("search: need backtrack_segments >= 0, max_backtracks >= 0, max_rounds >= iterations")
         if min(self.segment_frames, self.samples, self.iterations, self.keep, self.elite) < 1:

@@ -139,7 +139,10 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
         raise ValueError(f"start_frame {start_frame} must be a multiple of segment_frames below {frames}")
     t0 = time.perf_counter()
     n, nu, hinge = search.samples, humanoid.nu, humanoid.hinge_qpos
-    ref = reference_frames(library, clip, frames)
+    # The reference past the last frame too, for the look-ahead (a one-shot clip only to its end).
+    beyond = search.lookahead_frames if library.loop[clip] else min(search.lookahead_frames,
+                                                                     max(0, library.num_frames[clip] - 1 - frames))
+    ref = reference_frames(library, clip, frames + int(beyond))
     bounds = np.append(np.arange(start_frame, frames, search.segment_frames), frames)
     nseg = len(bounds) - 1
     sim = BatchedSim(humanoid, n, threads, max_speed)
@@ -175,7 +178,8 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
                 base = guide(k, feat) if guide is not None else np.zeros((n, nu))
                 noise = mean + sigma * rng.standard_normal((n, nu))
                 offset = base + noise
-                c, terms, end = _simulate(sim, fk, humanoid, cost, starts, offset, ref, f0, f1, hinge)
+                c, terms, end = _simulate(sim, fk, humanoid, cost, starts, offset, ref, f0, f1, hinge,
+                                          search.lookahead_frames, search.lookahead_weight)  # fmt: skip
                 rounds.append((parent, offset, c, end, terms, feat, fresh))
                 elite = np.flatnonzero(~fresh)[np.argsort(c[~fresh], kind="stable")[: search.elite]]
                 w = _log_weights(len(elite))
@@ -217,13 +221,19 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
 
 
 def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: CostConfig, starts: np.ndarray,
-              offset: np.ndarray, ref: CharacterState, f0: int, f1: int,
-              hinge: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:  # fmt: skip
+              offset: np.ndarray, ref: CharacterState, f0: int, f1: int, hinge: np.ndarray, lookahead: int = 0,
+              lookahead_weight: float = 1.0) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:  # fmt: skip
     """Simulates every candidate through frames [f0, f1) from ``starts`` (n, nstate) with targets ref + ``offset``.
 
+    With ``lookahead`` > 0 each candidate plays on for that many frames past the segment (the same offset held,
+    at most to the reference's last frame), and ``lookahead_weight`` times that stretch's mean cost joins its
+    cost: a state that tracks the segment well but cannot go on (a take-off short of height) ranks lower. The end
+    state and the terms stay the segment's own.
+
     Returns:
-        cost: Mean tracking cost over the segment's frames, inf for a blown-up simulation. Shape: (n,).
-        terms: Mean unweighted terms, {name: (n,)}; ``fallen``: frames fallen.
+        cost: Mean tracking cost over the segment's frames (plus the weighted look-ahead cost), inf for a blown-up
+            simulation. Shape: (n,).
+        terms: Mean unweighted terms of the segment, {name: (n,)}; ``fallen``: frames fallen.
         end: Full state at the segment's end. Shape: (n, nstate).
     """
     n = len(starts)
@@ -241,8 +251,18 @@ def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: 
         for key in sums:
             sums[key] += terms[key]
     frames = f1 - f0
-    total = np.where(blown, np.inf, total / frames)
-    return total, {k: v / (frames if k != "fallen" else 1) for k, v in sums.items()}, sim.state.copy()
+    end = sim.state.copy()
+    total /= frames
+    ahead = range(f1, min(f1 + lookahead, len(ref.qpos) - 1))
+    if len(ahead):
+        more = np.zeros(n)
+        for f in ahead:
+            blown_ahead = sim.step(ref.qpos[f + 1, hinge][None] + offset)
+            sim.state[blown_ahead | blown] = end[blown_ahead | blown]
+            more += tracking_cost(humanoid, cost, fk(sim.qpos.copy(), sim.qvel.copy()), ref[np.full(n, f + 1)])[0]
+        total += lookahead_weight * more / len(ahead)
+    total = np.where(blown, np.inf, total)
+    return total, {k: v / (frames if k != "fallen" else 1) for k, v in sums.items()}, end
 
 
 def _trace_back(name: str, start: np.ndarray, history: list, ref: CharacterState, bounds: np.ndarray,

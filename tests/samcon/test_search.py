@@ -155,3 +155,24 @@ def test_a_search_from_a_later_frame_starts_on_that_reference_state_and_replays(
     np.testing.assert_allclose(later.features[0], 0.0, atol=1e-9)
     with pytest.raises(ValueError, match="multiple of segment_frames"):
         samcon(humanoid, library, 0, 12, search, CostConfig(), np.random.default_rng(6), start_frame=4)
+
+
+def test_the_look_ahead_cost_is_the_held_offset_played_on(walk) -> None:
+    humanoid, library = walk
+    search = SearchConfig(segment_frames=3, samples=4, iterations=1, keep=4, elite=2, sigma_init=0.2,
+                          lookahead_frames=3, lookahead_weight=0.5)  # fmt: skip
+    cost_cfg = CostConfig()
+    traj = samcon(humanoid, library, 0, 3, search, cost_cfg, np.random.default_rng(7))
+    offsets = 0.2 * np.random.default_rng(7).standard_normal((4, humanoid.nu))
+    ref = reference_frames(library, 0, 6)
+    fk = ForwardKinematics(humanoid)
+    costs = []
+    for offset in offsets:  # each candidate alone: 3 frames of the segment, then 3 more with the same offset
+        states = replay(humanoid, traj.start_state, ref.qpos[1:7, humanoid.hinge_qpos] + offset)
+        now = fk(states[:, 1 : 1 + humanoid.nq], states[:, 1 + humanoid.nq : 1 + humanoid.nq + humanoid.nv])
+        per_frame = tracking_cost(humanoid, cost_cfg, now, ref[np.arange(1, 7)])[0]
+        costs.append(per_frame[:3].mean() + 0.5 * per_frame[3:].mean())
+    fk.close()
+    np.testing.assert_allclose(traj.kept_cost[0], np.sort(costs), rtol=1e-12)
+    # The kept state is the segment's end, not the look-ahead's.
+    np.testing.assert_array_equal(replay(humanoid, traj.start_state, traj.targets)[-1], traj.end_states[0])
