@@ -41,6 +41,21 @@ def test_cost_of_a_shifted_character_is_its_root_term(walk) -> None:
     assert terms["fallen"].all() and cost[0] > 1000.0
 
 
+def _per_frame_costs(humanoid: Humanoid, library, start: np.ndarray, offsets: np.ndarray, frames: int,
+                     cost_cfg: CostConfig) -> np.ndarray:  # fmt: skip
+    """Each offset played alone from ``start`` on the reference's next-frame angles, scored frame by frame,
+    independently of the search's batch. Shape: (len(offsets), frames)."""
+    ref = reference_frames(library, 0, frames)
+    fk = ForwardKinematics(humanoid)
+    out = []
+    for offset in offsets:
+        states = replay(humanoid, start, ref.qpos[1 : frames + 1, humanoid.hinge_qpos] + offset)
+        now = fk(states[:, 1 : 1 + humanoid.nq], states[:, 1 + humanoid.nq : 1 + humanoid.nq + humanoid.nv])
+        out.append(tracking_cost(humanoid, cost_cfg, now, ref[np.arange(1, frames + 1)])[0])
+    fk.close()
+    return np.array(out)
+
+
 def test_kept_are_the_cheapest_and_the_trajectory_replays_bit_exactly(walk) -> None:
     humanoid, library = walk
     search = SearchConfig(segment_frames=4, samples=6, iterations=1, keep=3, elite=2, sigma_init=0.2)
@@ -48,15 +63,7 @@ def test_kept_are_the_cheapest_and_the_trajectory_replays_bit_exactly(walk) -> N
     traj = samcon(humanoid, library, 0, 4, search, cost_cfg, np.random.default_rng(3))
     # The same draws, each candidate simulated alone and scored frame by frame, independently of the batch.
     offsets = 0.2 * np.random.default_rng(3).standard_normal((6, humanoid.nu))
-    ref = reference_frames(library, 0, 4)
-    fk = ForwardKinematics(humanoid)
-    costs = []
-    for offset in offsets:
-        states = replay(humanoid, traj.start_state, ref.qpos[1:5, humanoid.hinge_qpos] + offset)
-        now = fk(states[:, 1 : 1 + humanoid.nq], states[:, 1 + humanoid.nq : 1 + humanoid.nq + humanoid.nv])
-        costs.append(tracking_cost(humanoid, cost_cfg, now, ref[np.arange(1, 5)])[0].mean())
-    fk.close()
-    costs = np.array(costs)
+    costs = _per_frame_costs(humanoid, library, traj.start_state, offsets, 4, cost_cfg).mean(axis=1)
     np.testing.assert_allclose(traj.kept_cost[0], np.sort(costs)[:3], rtol=1e-12)
     best = int(np.argmin(costs))
     np.testing.assert_array_equal(traj.offsets[0], offsets[best])
@@ -164,15 +171,9 @@ def test_the_look_ahead_cost_is_the_held_offset_played_on(walk) -> None:
     cost_cfg = CostConfig()
     traj = samcon(humanoid, library, 0, 3, search, cost_cfg, np.random.default_rng(7))
     offsets = 0.2 * np.random.default_rng(7).standard_normal((4, humanoid.nu))
-    ref = reference_frames(library, 0, 6)
-    fk = ForwardKinematics(humanoid)
-    costs = []
-    for offset in offsets:  # each candidate alone: 3 frames of the segment, then 3 more with the same offset
-        states = replay(humanoid, traj.start_state, ref.qpos[1:7, humanoid.hinge_qpos] + offset)
-        now = fk(states[:, 1 : 1 + humanoid.nq], states[:, 1 + humanoid.nq : 1 + humanoid.nq + humanoid.nv])
-        per_frame = tracking_cost(humanoid, cost_cfg, now, ref[np.arange(1, 7)])[0]
-        costs.append(per_frame[:3].mean() + 0.5 * per_frame[3:].mean())
-    fk.close()
+    # Each candidate alone: 3 frames of the segment, then 3 more with the same offset.
+    per_frame = _per_frame_costs(humanoid, library, traj.start_state, offsets, 6, cost_cfg)
+    costs = per_frame[:, :3].mean(axis=1) + 0.5 * per_frame[:, 3:].mean(axis=1)
     np.testing.assert_allclose(traj.kept_cost[0], np.sort(costs), rtol=1e-12)
     # The kept state is the segment's end, not the look-ahead's.
     np.testing.assert_array_equal(replay(humanoid, traj.start_state, traj.targets)[-1], traj.end_states[0])
