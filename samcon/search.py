@@ -148,8 +148,8 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     sim = BatchedSim(humanoid, n, threads, max_speed)
     fk = ForwardKinematics(humanoid, threads)
     # The start time as the gym reaches frame start_frame from 0 (previous time + dt), as reference_frames does.
-    start = start_state(library, humanoid, clip, rsi_lift, 0.0 if start_frame == 0 else (start_frame - 1) * library.dt
-                        + library.dt)  # fmt: skip
+    t_start = 0.0 if start_frame == 0 else (start_frame - 1) * library.dt + library.dt
+    start = start_state(library, humanoid, clip, rsi_lift, t_start)
     nq, nv = humanoid.nq, humanoid.nv
     fresh = np.arange(n) >= n - int(round(fresh_share * n))
     fresh_state = np.zeros_like(start[None])
