@@ -10,7 +10,7 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402 - the backend must be chosen first
 
-from report.runs import Run  # noqa: E402
+from report.runs import Run, method_groups  # noqa: E402
 
 CURVES = (
     ("eval/mpjpe_g", "MPJPE-g (mm)"),
@@ -18,13 +18,6 @@ CURVES = (
     ("eval/episode_len_ratio", "episode length / max frames"),
 )
 WORLD_MODEL_PREFIX = "world_model/val_pos_err_h"
-
-
-def _colors(runs: list[Run]) -> dict[str, str]:
-    """One colour per learner, so that several seeds of one method read as one family."""
-    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    learners = sorted({r.learner for r in runs})
-    return {name: cycle[i % len(cycle)] for i, name in enumerate(learners)}
 
 
 def _band(xs: list[list[float]], ys: list[list[float]], points: int = 50) -> tuple[np.ndarray, ...] | None:
@@ -43,16 +36,16 @@ def _band(xs: list[list[float]], ys: list[list[float]], points: int = 50) -> tup
 def learning_curves(runs: list[Run], out: Path) -> Path:
     """MPJPE-g, success and episode length against samples (top row) and wall-clock (bottom row).
 
-    A learner with several runs (seeds) is drawn as thin per-seed lines, their mean (thick) and a band from the lowest
-    to the highest seed, over the range of samples / minutes that every seed reached.
+    A method with several runs (seeds of one config, :func:`report.runs.method_groups`) is drawn as thin per-seed
+    lines, their mean (thick) and a band from the lowest to the highest seed, over the range of samples / minutes
+    that every seed reached.
 
     Returns:
         The PNG written.
     """
-    colors = _colors(runs)
-    groups: dict[str, list[Run]] = {}
-    for run in runs:
-        groups.setdefault(run.learner, []).append(run)
+    groups = {name: [runs[i] for i in idx] for name, idx in method_groups(runs).items()}
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colors = {name: cycle[i % len(cycle)] for i, name in enumerate(groups)}
     fig, axes = plt.subplots(2, len(CURVES), figsize=(5 * len(CURVES), 7), squeeze=False)
     for col, (key, title) in enumerate(CURVES):
         for learner, members in groups.items():

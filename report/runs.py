@@ -178,3 +178,47 @@ def unique_labels(runs: list[Run]) -> None:
         seen[run.label] = n + 1
         if n:
             run.label = f"{run.label}#{n + 1}"
+
+
+# Config keys that do not make a different method: the seed, budgets, logging and threads of the machine it ran on.
+_NOT_METHOD = {"train.seed", "gym.seed", "train.device", "train.motions", "train.torch_threads", "train.max_minutes",
+               "train.max_samples", "train.max_iterations", "train.log_every", "train.eval_every_minutes",
+               "train.checkpoint_every_minutes", "train.keep_checkpoints", "train.eval.threads", "gym.threads"}
+
+
+def _flat(config: Any, prefix: str = "") -> dict[str, str]:
+    if not isinstance(config, dict):
+        return {prefix: repr(config)}
+    out: dict[str, str] = {}
+    for key, value in config.items():
+        out.update(_flat(value, f"{prefix}.{key}" if prefix else str(key)))
+    return out
+
+
+def method_groups(runs: list[Run]) -> dict[str, list[int]]:
+    """{method: indices of its runs}, in first-seen order: the runs that are seeds of one method.
+
+    Runs are seeds of each other when they share the learner, the motion set and the config except the seed, the
+    budgets, logging and thread counts (``_NOT_METHOD``). A learner with several groups names each by its motion set
+    (``learner (clips)``) where those differ, and by the config values that tell its groups apart
+    (``learner [key=value, ...]``) where the configs differ.
+    """
+    flats = [{k: v for k, v in _flat(run.config).items() if k not in _NOT_METHOD} for run in runs]
+    keys: dict[tuple[str, tuple[str, ...], tuple[tuple[str, str], ...]], list[int]] = {}
+    for i, run in enumerate(runs):
+        keys.setdefault((run.learner, tuple(run.motions), tuple(sorted(flats[i].items()))), []).append(i)
+    names: dict[str, list[int]] = {}
+    for (learner, motions, config), idx in keys.items():
+        same = [k for k in keys if k[0] == learner]
+        name = learner
+        if len({k[1] for k in same}) > 1:
+            name += f" ({', '.join(motions)})"
+        if len({k[2] for k in same if k[1] == motions}) > 1:
+            mine = dict(config)
+            others = [dict(k[2]) for k in same if k[1] == motions and k[2] != config]
+            differ = sorted(key for key in mine if any(o.get(key) != mine[key] for o in others))
+            differ += sorted({key for o in others for key in o if key not in mine})
+            shown = [f"{key}={mine.get(key, '-')}" for key in differ[:3]] + (["..."] if len(differ) > 3 else [])
+            name += f" [{', '.join(shown)}]"
+        names.setdefault(name, []).extend(idx)
+    return names

@@ -11,7 +11,7 @@ import numpy as np
 from common.train import metrics as M
 from common.train.evaluate import EvalResult
 from report.figures import world_model_keys
-from report.runs import Run
+from report.runs import Run, method_groups
 
 NUMBER_FORMAT = ".6g"  # enough digits that the tables reproduce the evaluator's numbers to 1e-5 relative
 
@@ -136,17 +136,8 @@ def configs_block(runs: list[Run]) -> str:
 
 
 def _groups(runs: list[Run]) -> dict[str, list[int]]:
-    """{learner: indices of its runs}, in first-seen order: the seeds of one method.
-
-    Runs of one learner trained on different motion sets are not seeds of each other (SAMCON runs one per clip): they
-    form one group per motion set, named ``learner (clips)``.
-    """
-    keys: dict[tuple[str, tuple[str, ...]], list[int]] = {}
-    for i, run in enumerate(runs):
-        keys.setdefault((run.learner, tuple(run.motions)), []).append(i)
-    several = {learner for learner, _ in keys if sum(k[0] == learner for k in keys) > 1}
-    return {(f"{learner} ({', '.join(m)})" if learner in several else learner): idx
-            for (learner, m), idx in keys.items()}  # fmt: skip
+    """{method: indices of its runs}: :func:`report.runs.method_groups`."""
+    return method_groups(runs)
 
 
 def mean_std(values: Sequence[float]) -> str:

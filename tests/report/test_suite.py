@@ -104,6 +104,19 @@ def test_runs_on_other_clips_are_not_seeds_of_each_other() -> None:
     assert _groups(runs) == {"supertrack": [0, 3], "samcon (walk)": [1], "samcon (run)": [2]}
 
 
+def test_runs_of_other_configs_are_not_seeds_of_each_other() -> None:
+    from report.runs import Run, method_groups
+
+    def run(name: str, seed: int, lr: float, threads: int) -> Run:
+        config = {"train": {"seed": seed, "torch_threads": threads}, "ppo": {"actor_lr": lr, "epochs": 5}}
+        return Run(Path(name), f"ppo:{name}", "ppo", config, {"motions": ["walk"]}, [], Path("c"), 0, 0, 0.0)
+
+    # seeds and thread counts do not make another method; the learning rate does, and names the group
+    runs = [run("a", 0, 1e-4, 1), run("b", 0, 3e-5, 1), run("c", 1, 1e-4, 2), run("d", 1, 3e-5, 1)]
+    assert method_groups(runs) == {"ppo [ppo.actor_lr=0.0001]": [0, 2], "ppo [ppo.actor_lr=3e-05]": [1, 3]}
+    assert method_groups(runs[:1] + runs[2:3]) == {"ppo": [0, 1]}
+
+
 def test_a_failed_run_stops_new_starts_but_lets_running_ones_finish(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
