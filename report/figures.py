@@ -48,11 +48,11 @@ def learning_curves(runs: list[Run], out: Path) -> Path:
     colors = {name: cycle[i % len(cycle)] for i, name in enumerate(groups)}
     fig, axes = plt.subplots(2, len(CURVES), figsize=(5 * len(CURVES), 7), squeeze=False)
     for col, (key, title) in enumerate(CURVES):
-        for learner, members in groups.items():
+        for method, members in groups.items():
             curves = [run.curve(key) for run in members]
             several = len(members) > 1
             for run, (samples, seconds, values) in zip(members, curves, strict=True):
-                style = {"color": colors[learner], "marker": "o", "markersize": 2 if several else 3,
+                style = {"color": colors[method], "marker": "o", "markersize": 2 if several else 3,
                          "linewidth": 0.8 if several else 1.5, "alpha": 0.45 if several else 1.0,
                          "label": None if several else run.label}  # fmt: skip
                 axes[0, col].plot(samples, values, **style)
@@ -64,9 +64,9 @@ def learning_curves(runs: list[Run], out: Path) -> Path:
                 if band is None:
                     continue
                 grid, mean, low, high = band
-                axes[row, col].plot(grid, mean, color=colors[learner], linewidth=2.2,
-                                    label=f"{learner}: mean of {len(members)} seeds (band: min-max)")  # fmt: skip
-                axes[row, col].fill_between(grid, low, high, color=colors[learner], alpha=0.18)
+                axes[row, col].plot(grid, mean, color=colors[method], linewidth=2.2,
+                                    label=f"{method}: mean of {len(members)} seeds (band: min-max)")  # fmt: skip
+                axes[row, col].fill_between(grid, low, high, color=colors[method], alpha=0.18)
         axes[0, col].set_title(title)
         axes[0, col].set_xlabel("environment samples")
         axes[1, col].set_xlabel("training wall-clock (min)")

@@ -135,11 +135,6 @@ def configs_block(runs: list[Run]) -> str:
     return "\n".join(parts)
 
 
-def _groups(runs: list[Run]) -> dict[str, list[int]]:
-    """{method: indices of its runs}: :func:`report.runs.method_groups`."""
-    return method_groups(runs)
-
-
 def mean_std(values: Sequence[float]) -> str:
     """``mean ± std (n=N)`` with the sample standard deviation (ddof 1; 0 for one value); NaNs left out."""
     v = np.asarray(values, dtype=float)
@@ -154,7 +149,7 @@ def spread_table(runs: list[Run], results: list[EvalResult], pushed: list[EvalRe
 
     With ``pushed`` (the same runs under the robustness protocol), its survival and MPJPE-g are rows too.
     """
-    groups = _groups(runs)
+    groups = method_groups(runs)
     if all(len(g) < 2 for g in groups.values()):
         return None
     rows = [[key, *(mean_std([results[i].overall[key] for i in idx]) for idx in groups.values())]
@@ -172,7 +167,7 @@ PER_CLIP_SPREAD = ("mpjpe_g", "mpjpe_l", "survival", "success")
 def per_clip_spread_table(runs: list[Run], results: list[EvalResult]) -> str | None:
     """Per clip, each learner's mean ± std over its seeds of MPJPE-g / -l, survival and success; None when every
     learner has one run."""
-    groups = _groups(runs)
+    groups = method_groups(runs)
     if all(len(g) < 2 for g in groups.values()):
         return None
     rows = []

@@ -94,7 +94,7 @@ def test_parallel_runs_get_one_core_each() -> None:
 
 def test_runs_on_other_clips_are_not_seeds_of_each_other() -> None:
     from report.runs import Run
-    from report.tables import _groups
+    from report.runs import method_groups as _groups
 
     def run(learner: str, motions: list[str], name: str) -> Run:
         return Run(Path(name), f"{learner}:{name}", learner, {}, {"motions": motions}, [], Path("c"), 0, 0, 0.0)
