@@ -9,11 +9,19 @@ For a run directory's latest (or chosen) checkpoint:
    policy that exploits W's blind spots shows bodies spinning or shaking far faster than both (often the feet).
 
     .venv/bin/python benchmarks/world_model_bodies.py runs/st-walk-60
+
+With ``--motions``, (1) is measured per clip instead, on fresh frames: the policy with its training noise
+(``policy.sigma``) plays each named clip in the simulator (reference state initialisation, the gym's rules), and W
+predicts each frame's successor from the frame and the applied targets. That is W's error on the distribution the
+policy makes on that clip, which the held-back buffer (all clips mixed, no clip stored) cannot separate:
+
+    .venv/bin/python benchmarks/world_model_bodies.py runs/st-all20 --motions walk backflip sideflip
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import sys
 from pathlib import Path
 
@@ -25,16 +33,18 @@ sys.path.insert(0, str(ROOT))
 
 from common.character.humanoid import Humanoid  # noqa: E402
 from common.motion.dataset import load_motions  # noqa: E402
+from common.motion.library import MotionLibrary  # noqa: E402
 from common.sim.gym import TrackingGym  # noqa: E402
 from common.train.checkpoint import CheckpointError  # noqa: E402
 from common.train.config import load_config  # noqa: E402
 from common.train.evaluate import reference_policy  # noqa: E402
 from common.train.run import read_checkpoint  # noqa: E402
 from common.train.training import gym_config  # noqa: E402
+from supertrack.actor import GymActor  # noqa: E402
 from supertrack.config import SuperTrackConfig  # noqa: E402
 from supertrack.learner import SuperTrackLearner  # noqa: E402
 from supertrack.rollout import world_model_rollout  # noqa: E402
-from supertrack.state import BodyState  # noqa: E402
+from supertrack.state import BodyState, pack_character_state  # noqa: E402
 
 
 def main() -> None:
@@ -43,6 +53,9 @@ def main() -> None:
     parser.add_argument("--checkpoint", default=None, help="checkpoint file (default: the run's latest)")
     parser.add_argument("--windows", type=int, default=512, help="held-back windows for W's error")
     parser.add_argument("--frames", type=int, default=120, help="control steps of the policy in the simulator")
+    parser.add_argument("--motions", nargs="+", default=None,
+                        help="clips of the run to measure W on one by one, on frames of the noisy policy (prints a "
+                             "body x clip table of W's angular-velocity error over the w=const guess's)")  # fmt: skip
     args = parser.parse_args()
     run = Path(args.run_dir)
     if not (run / "config.yaml").is_file():
@@ -57,6 +70,13 @@ def main() -> None:
     library = load_motions(list(cfg.train.motions), humanoid)
     learner = SuperTrackLearner(cfg, humanoid, library, np.random.default_rng(0))
     # A gym of the run's settings plays the policy (the learner's own may live in a collector process).
+    if args.motions:
+        try:
+            learner.load_state_dict(state["learner"])
+            per_clip(cfg, learner, humanoid, library, args.motions, args.frames)
+        finally:
+            learner.close()
+        return
     gym = TrackingGym(gym_config(cfg), library, humanoid)
     try:
         learner.load_state_dict(state["learner"])
@@ -109,6 +129,69 @@ def main() -> None:
     for k, q in enumerate(humanoid.hinge_qpos):
         flag = "  <- chatter (> 3x the reference + 0.5 deg)" if rate[k] > 3 * ref_rate[k] + np.radians(0.5) else ""
         print(f"{by_qpos[int(q)]:<18}{np.degrees(rate[k]):>8.2f}{np.degrees(ref_rate[k]):>8.2f}" + flag)
+
+
+def one_frame_errors(learner: SuperTrackLearner, sim: np.ndarray, target_rot: np.ndarray,
+                     sim_next: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """W's and the constant-velocity guess's mean one-frame errors per body: (W vel, v=const, W angvel, w=const).
+
+    Args:
+        learner: The run's learner (its W).
+        sim: Packed states S_t. Shape: (B, N, 13).
+        target_rot: The targets T_t applied at S_t. Shape: (B, J, 4).
+        sim_next: Packed states S_{t+1} the simulator reached. Shape: (B, N, 13).
+    """
+    states = BodyState.unpack(torch.as_tensor(np.stack([sim, sim_next], axis=1)))
+    targets = torch.as_tensor(np.stack([target_rot, target_rot], axis=1))
+    with torch.no_grad():
+        pred = world_model_rollout(learner.world_model, states, targets).time(0)
+    now, nxt = states.time(0), states.time(1)
+
+    def err(a: torch.Tensor, b: torch.Tensor) -> np.ndarray:
+        return (a - b).norm(dim=-1).mean(0).numpy()
+
+    return err(pred.vel, nxt.vel), err(now.vel, nxt.vel), err(pred.angvel, nxt.angvel), err(now.angvel, nxt.angvel)
+
+
+def per_clip(cfg: SuperTrackConfig, learner: SuperTrackLearner, humanoid: Humanoid, library: MotionLibrary,
+             clips: list[str], frames: int) -> None:  # fmt: skip
+    """Prints W's one-frame angular-velocity error over the w=const guess's, per body and clip, on frames of the
+    noisy policy playing each clip (a frame whose step ended the episode has no successor and is left out)."""
+    unknown = [c for c in clips if c not in library.names]
+    if unknown:
+        raise SystemExit(f"--motions: {', '.join(unknown)} not among the run's clips ({', '.join(library.names)})")
+    actor = GymActor(humanoid, copy.deepcopy(learner.eval_actor.policy), cfg.policy.alpha, cfg.policy.sigma)
+    rng = np.random.default_rng(2)
+    table, summary = {}, []
+    for clip in clips:
+        one = MotionLibrary([library.clips[library.clip_index(clip)]], library.dt)
+        gym = TrackingGym(gym_config(cfg), one, humanoid)
+        try:
+            res = gym.reset()
+            sims, targets, nexts = [], [], []
+            for _ in range(frames):
+                hinges, fields = actor(res, rng)
+                step = gym.step(hinges)
+                kept = ~(step.terminated | step.truncated)
+                sims.append(fields["sim"][kept])
+                targets.append(fields["target_rot"][kept])
+                nexts.append(pack_character_state(step.final_sim)[kept])
+                res = step
+        finally:
+            gym.close()
+        w_vel, base_vel, w_ang, base_ang = one_frame_errors(learner, np.concatenate(sims), np.concatenate(targets),
+                                                            np.concatenate(nexts))  # fmt: skip
+        table[clip] = w_ang / base_ang
+        summary.append((clip, len(np.concatenate(sims)), w_ang.mean(), base_ang.mean(), w_vel.mean(), base_vel.mean()))
+    print(f"W's one-frame angular-velocity error / the w=const guess's, per body, on {frames} frames x "
+          f"{cfg.gym.num_envs} characters of the noisy policy (sigma {cfg.policy.sigma}) per clip; > 1: W is worse")
+    width = max(9, *(len(c) + 1 for c in clips))
+    print(f"{'body':<18}" + "".join(f"{c:>{width}}" for c in clips))
+    for i, name in enumerate(humanoid.body_names):
+        print(f"{name:<18}" + "".join(f"{table[c][i]:>{width}.2f}" for c in clips))
+    print(f"\n{'clip':<16}{'frames':>8}{'W angvel':>10}{'w=const':>9}{'W vel':>8}{'v=const':>9}   (means over bodies)")
+    for clip, n, wa, ba, wv, bv in summary:
+        print(f"{clip:<16}{n:>8}{wa:>10.3f}{ba:>9.3f}{wv:>8.3f}{bv:>9.3f}")
 
 
 if __name__ == "__main__":

@@ -307,3 +307,36 @@ def test_a_checkpoint_from_before_the_collector_still_loads(runs: dict[str, Path
     _assert_same_tensors(reloaded["collector"]["sources"][0]["gym"], old["gym"])
     np.testing.assert_array_equal(reloaded["val_buffer"]["rows"]["sim"], state["val_buffer"]["rows"]["sim"])
     assert not reloaded["train_buffer"]["rows"]["collected_at"].any()
+
+
+def test_world_model_bodies_per_clip_errors(runs: dict[str, Path], capsys: pytest.CaptureFixture[str]) -> None:
+    """benchmarks/world_model_bodies.py --motions: the constant-velocity columns are |v_t - v_t+1| per body, read
+    from the packed layout by hand (vel at columns 7:10, angvel at 10:13), and the per-clip table names every body."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "world_model_bodies.py"
+    spec = importlib.util.spec_from_file_location("world_model_bodies", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    eager = ["world_model.compile=false", "policy.compile=false"]
+    cfg = load_config(SuperTrackConfig, runs["a"] / "config.yaml", eager)
+    humanoid = Humanoid(cfg.gym.physics)
+    library = load_motions(["walk"], humanoid)
+    learner = SuperTrackLearner(cfg, humanoid, library, np.random.default_rng(0))
+    try:
+        learner.load_state_dict(read_checkpoint(runs["a"])[1]["learner"])
+        rng = np.random.default_rng(3)
+        n = humanoid.num_bodies
+        sim, nxt = rng.normal(size=(2, 5, n, 13)).astype(np.float32)
+        sim[..., 3:7] /= np.linalg.norm(sim[..., 3:7], axis=-1, keepdims=True)
+        targets = np.zeros((5, len(humanoid.joint_groups), 4), np.float32)
+        targets[..., 0] = 1.0
+        w_vel, base_vel, w_ang, base_ang = bench.one_frame_errors(learner, sim, targets, nxt)
+        np.testing.assert_allclose(base_vel, np.linalg.norm(sim[..., 7:10] - nxt[..., 7:10], axis=-1).mean(0), 1e-6)
+        np.testing.assert_allclose(base_ang, np.linalg.norm(sim[..., 10:13] - nxt[..., 10:13], axis=-1).mean(0), 1e-6)
+        assert w_vel.shape == w_ang.shape == (n,) and np.all(w_ang > 0)
+        bench.per_clip(cfg, learner, humanoid, library, ["walk"], frames=3)
+    finally:
+        learner.close()
+    out = capsys.readouterr().out
+    assert all(name in out for name in humanoid.body_names) and "walk" in out
