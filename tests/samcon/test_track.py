@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from report.compare import build_report
@@ -50,6 +51,17 @@ def test_compare_trackers_reads_a_samcon_run(run: Path, tmp_path: Path) -> None:
     oracle_rows = md.split("## Oracle", 1)[1].split("\n\n")[1].splitlines()[2:]
     cells = [c.strip() for c in oracle_rows[0].strip("|").split("|")]
     assert cells[:2] == ["walk", f"samcon:{run.name}"] and cells[3] == "no"
+
+
+def test_a_clips_search_does_not_depend_on_the_clips_before_it(run: Path, tmp_path: Path) -> None:
+    """walk run second, after jump, gets the same trajectory and gains as walk alone (the module's run)."""
+    import h5py
+
+    main(["--config", DEBUG, "--out", str(tmp_path / "two"), "--motions", "jump", "walk"])
+    with h5py.File(run / "samcon.h5") as alone, h5py.File(tmp_path / "two" / "samcon.h5") as two:
+        assert list(two["clips"]) == ["jump", "walk"]
+        for name in ("targets", "offsets", "gain", "bias"):
+            np.testing.assert_array_equal(two["clips/walk"][name][()], alone["clips/walk"][name][()])
 
 
 @pytest.mark.parametrize(
