@@ -12,10 +12,12 @@ import matplotlib.pyplot as plt  # noqa: E402 - the backend must be chosen first
 
 from report.runs import Run, method_groups  # noqa: E402
 
+# (metric, title, y-axis scale). MPJPE-g spans four decades in one run (metres after a fall, tens of millimetres
+# once it tracks): on a linear axis everything under ~500 mm is one flat line, where the targets (40-100 mm) lie.
 CURVES = (
-    ("eval/mpjpe_g", "MPJPE-g (mm)"),
-    ("eval/success", "success rate"),
-    ("eval/episode_len_ratio", "episode length / max frames"),
+    ("eval/mpjpe_g", "MPJPE-g (mm, log scale)", "log"),
+    ("eval/success", "success rate", "linear"),
+    ("eval/episode_len_ratio", "episode length / max frames", "linear"),
 )
 WORLD_MODEL_PREFIX = "world_model/val_pos_err_h"
 
@@ -47,7 +49,7 @@ def learning_curves(runs: list[Run], out: Path) -> Path:
     cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     colors = {name: cycle[i % len(cycle)] for i, name in enumerate(groups)}
     fig, axes = plt.subplots(2, len(CURVES), figsize=(5 * len(CURVES), 7), squeeze=False)
-    for col, (key, title) in enumerate(CURVES):
+    for col, (key, title, scale) in enumerate(CURVES):
         for method, members in groups.items():
             curves = [run.curve(key) for run in members]
             several = len(members) > 1
@@ -71,7 +73,8 @@ def learning_curves(runs: list[Run], out: Path) -> Path:
         axes[0, col].set_xlabel("environment samples")
         axes[1, col].set_xlabel("training wall-clock (min)")
         for row in range(2):
-            axes[row, col].grid(alpha=0.3)
+            axes[row, col].set_yscale(scale)
+            axes[row, col].grid(alpha=0.3, which="both" if scale == "log" else "major")
     axes[0, 0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out, dpi=90)
