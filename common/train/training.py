@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from datetime import datetime
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -110,8 +111,10 @@ def gym_config(cfg: Any) -> GymConfig:
 
 def add_common_arguments(parser: argparse.ArgumentParser, default_config: str) -> None:
     """The options both training commands share."""
-    parser.add_argument("--config", default=default_config,
-                        help=f"YAML config file (default: {default_config})")  # fmt: skip
+    parser.add_argument("--config", default=None,
+                        help=f"YAML config file (default: {default_config}; with --resume, the run's own "
+                             "config.yaml, so that --out and --resume are enough to continue a run)")  # fmt: skip
+    parser.set_defaults(default_config=default_config)
     parser.add_argument("--motions", nargs="+", default=None,
                         help="motions to track, overriding train.motions: bundled clip names (walk, run, ...), 'all', "
                              "'long', DeepMimic .txt files, folders, or a motion dataset .h5")  # fmt: skip
@@ -140,7 +143,13 @@ def add_common_arguments(parser: argparse.ArgumentParser, default_config: str) -
 
 
 def resolve_config(cls: type, args: argparse.Namespace) -> Any:
-    """Loads the config file with ``--set`` overrides and the dedicated options applied."""
+    """Loads the config file with ``--set`` overrides and the dedicated options applied.
+
+    Without ``--config`` it is the command's default, or with ``--resume`` the run's own ``config.yaml`` (the
+    resolved config it was started with); ``args.config`` is set to the file read, for messages."""
+    if args.config is None:
+        saved = Path(args.out) / "config.yaml" if args.resume and args.out else None
+        args.config = str(saved) if saved is not None and saved.is_file() else args.default_config
     overrides = list(args.overrides)
     if args.motions is not None:
         overrides.append("train.motions=[" + ", ".join(repr(m) for m in args.motions) + "]")

@@ -40,11 +40,12 @@ def _line(records: list[dict], iteration: int, key: str) -> dict:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """Run a: 6 iterations straight. Run b: 3 iterations, then resumed to 6."""
+    """Run a: 6 iterations straight. Run b: 3 iterations, then resumed to 6 with only --out and --resume (no
+    --config: the run's own config.yaml, not the command's default)."""
     root = tmp_path_factory.mktemp("supertrack")
     _train(root / "a")
     _train(root / "b", "--max-iterations", "3")
-    _train(root / "b", "--resume")
+    run(["--out", str(root / "b"), "--resume", "--max-iterations", "6"])
     return {"a": root / "a", "b": root / "b"}
 
 
