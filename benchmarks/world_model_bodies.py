@@ -69,7 +69,6 @@ def main() -> None:
     humanoid = Humanoid(cfg.gym.physics)
     library = load_motions(list(cfg.train.motions), humanoid)
     learner = SuperTrackLearner(cfg, humanoid, library, np.random.default_rng(0))
-    # A gym of the run's settings plays the policy (the learner's own may live in a collector process).
     if args.motions:
         try:
             learner.load_state_dict(state["learner"])
@@ -77,6 +76,7 @@ def main() -> None:
         finally:
             learner.close()
         return
+    # A gym of the run's settings plays the policy (the learner's own may live in a collector process).
     gym = TrackingGym(gym_config(cfg), library, humanoid)
     try:
         learner.load_state_dict(state["learner"])
@@ -179,10 +179,11 @@ def per_clip(cfg: SuperTrackConfig, learner: SuperTrackLearner, humanoid: Humano
                 res = step
         finally:
             gym.close()
-        w_vel, base_vel, w_ang, base_ang = one_frame_errors(learner, np.concatenate(sims), np.concatenate(targets),
+        sims = np.concatenate(sims)
+        w_vel, base_vel, w_ang, base_ang = one_frame_errors(learner, sims, np.concatenate(targets),
                                                             np.concatenate(nexts))  # fmt: skip
         table[clip] = w_ang / base_ang
-        summary.append((clip, len(np.concatenate(sims)), w_ang.mean(), base_ang.mean(), w_vel.mean(), base_vel.mean()))
+        summary.append((clip, len(sims), w_ang.mean(), base_ang.mean(), w_vel.mean(), base_vel.mean()))
     print(f"W's one-frame angular-velocity error / the w=const guess's, per body, on {frames} frames x "
           f"{cfg.gym.num_envs} characters of the noisy policy (sigma {cfg.policy.sigma}) per clip; > 1: W is worse")
     width = max(9, *(len(c) + 1 for c in clips))
