@@ -8,7 +8,11 @@ Looping (``wrap``) clips continue past their end: cycle c is the first cycle mov
 transform Delta^c, where Delta takes the root's ground position and heading at the first keyframe to those at the
 last keyframe. Because mocap loops never close exactly, the joint rotations, root height and root tilt are
 bent towards the first keyframe over the cycle (the mismatch e at the end is applied as s/D * e at time s), so
-that pose and velocities stay continuous across the loop point instead of jumping once per cycle.
+that pose and velocities stay continuous across the loop point instead of jumping once per cycle. Bending the legs
+moves the feet up or down: the root height is then corrected per keyframe so that the character's lowest point stays
+where the clip had it (the seam's own clearance mismatch is taken out over the cycle's last half second). Without that correction the
+jump clip's 15-20 deg hip and knee mismatch put its feet 7.9 cm into the floor after the landing, where the clip as
+recorded has them at most 1.8 cm below it.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from common.character.humanoid import Humanoid
+from common.character.humanoid import BodyGeometry, Humanoid
 from common.character.state import FRAME_FIELDS, CharacterState
 from common.maths.rotations import (
     angular_velocity,
@@ -38,6 +42,8 @@ from common.maths.rotations import (
 )
 from common.motion.motion import Clip
 
+SEAM_BLEND = 0.5  # s: a wrap clip's end takes its first frame's clearance above the floor over this long
+
 
 @dataclass(frozen=True)
 class ClipFrames:
@@ -56,8 +62,17 @@ class ClipFrames:
     frames: CharacterState
 
 
-def _bend_loop(clip: Clip) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Closes a wrap clip's loop: returns root_pos, root_rot, joint_rot bent towards the first keyframe."""
+def _bend_loop(clip: Clip, humanoid: Humanoid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closes a wrap clip's loop: returns root_pos, root_rot, joint_rot bent towards the first keyframe.
+
+    The joint rotations, root tilt and root height are bent by s/D of the seam mismatch at time s. The bend changes
+    how far the feet (or hands, or back) reach down, so the root height is then shifted per keyframe by
+    c(s) = (h(s) - h_bent(s)) - w(s) (h(D) - h(0)), h being the lowest point of the character's collision geoms: the
+    bent clip keeps the recorded clip's clearance above the floor, except for the seam's own clearance mismatch
+    h(D) - h(0), which is taken out over the last :data:`SEAM_BLEND` seconds (w a smoothstep from 0 to 1 there):
+    over the whole cycle it would lift or sink every frame for what is often a glitch of the last few (crawl's last
+    keyframes are 8.8 cm in the floor). c is 0 at both ends, so the loop stays closed.
+    """
     s = (clip.times / clip.duration)[:, None]
     root_pos = clip.root_pos.copy()
     root_pos[:, 2] += s[:, 0] * (clip.root_pos[0, 2] - clip.root_pos[-1, 2])
@@ -66,8 +81,35 @@ def _bend_loop(clip: Clip) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     tilt = quat_mul(quat_from_rotvec(s * tilt_err), tilt)
     root_rot = quat_fix_hemisphere(quat_mul(heading, tilt), axis=0)
     joint_err = quat_to_rotvec(quat_mul(clip.joint_rot[0], quat_conj(clip.joint_rot[-1])))
-    joint_rot = quat_mul(quat_from_rotvec(s[:, :, None] * joint_err[None]), clip.joint_rot)
-    return root_pos, root_rot, quat_fix_hemisphere(joint_rot, axis=0)
+    joint_rot = quat_fix_hemisphere(quat_mul(quat_from_rotvec(s[:, :, None] * joint_err[None]), clip.joint_rot), axis=0)
+    recorded = _lowest_point(humanoid, clip.root_pos, clip.root_rot, clip.joint_rot)
+    bent = _lowest_point(humanoid, root_pos, root_rot, joint_rot)
+    blend = min(SEAM_BLEND, clip.duration)
+    u = np.clip((clip.times - (clip.duration - blend)) / blend, 0.0, 1.0)
+    w = u * u * (3.0 - 2.0 * u)
+    root_pos[:, 2] += (recorded - bent) - w * (recorded[-1] - recorded[0])
+    return root_pos, root_rot, joint_rot
+
+
+def _lowest_point(humanoid: Humanoid, root_pos: np.ndarray, root_rot: np.ndarray, joint_rot: np.ndarray) -> np.ndarray:
+    """Height of the lowest collision-geom point of each keyframe's pose (MuJoCo's kinematics). Shape: (K,)."""
+    qpos = _qpos(humanoid, root_pos, root_rot, joint_rot)
+    state = body_states(humanoid, qpos, np.zeros((len(qpos), humanoid.nv)))
+    return BodyGeometry(humanoid).lowest_points(state.body_pos, state.body_rot).min(axis=-1)
+
+
+def _qpos(humanoid: Humanoid, root_pos: np.ndarray, root_rot: np.ndarray, joint_rot: np.ndarray) -> np.ndarray:
+    """Generalised coordinates of keyframes: the free root, then each joint's Euler angles or hinge angle."""
+    qpos = np.zeros((len(root_pos), humanoid.nq))
+    qpos[:, 0:3] = root_pos
+    qpos[:, 3:7] = root_rot
+    for j, group in enumerate(humanoid.joint_groups):
+        if group.kind == "spherical":
+            qpos[:, list(group.qpos)] = quat_to_euler_xyz_continuous(joint_rot[:, j])
+        else:
+            # A single-axis rotation about +y: angle = 2 atan2(q_y, q_w).
+            qpos[:, group.qpos[0]] = 2.0 * np.arctan2(joint_rot[:, j, 2], joint_rot[:, j, 0])
+    return qpos
 
 
 def cycle_transform(clip: Clip) -> tuple[float, np.ndarray]:
@@ -134,7 +176,7 @@ def resample_clip(clip: Clip, humanoid: Humanoid) -> ClipFrames:
     """
     dt = humanoid.physics.control_dt
     if clip.loop:
-        root_pos, root_rot, joint_rot = _bend_loop(clip)
+        root_pos, root_rot, joint_rot = _bend_loop(clip, humanoid)
         # A cycle of a whole number of frames keeps every gym time on the grid (queries are plain lookups and the
         # loop seam is exact): the clip is time-scaled by at most half a step per cycle (<= 1% for the bundled clips).
         cycle_frames = max(2, int(round(clip.duration / dt)))
@@ -151,15 +193,7 @@ def resample_clip(clip: Clip, humanoid: Humanoid) -> ClipFrames:
     pos, rot, jrot = _sample_keyframes(clip, times, root_pos, root_rot, joint_rot)
     rot = quat_fix_hemisphere(rot, axis=0)
 
-    qpos = np.zeros((len(k), humanoid.nq))
-    qpos[:, 0:3] = pos
-    qpos[:, 3:7] = rot
-    for j, group in enumerate(humanoid.joint_groups):
-        if group.kind == "spherical":
-            qpos[:, list(group.qpos)] = quat_to_euler_xyz_continuous(jrot[:, j])
-        else:
-            # A single-axis rotation about +y: angle = 2 atan2(q_y, q_w).
-            qpos[:, group.qpos[0]] = 2.0 * np.arctan2(jrot[:, j, 2], jrot[:, j, 0])
+    qpos = _qpos(humanoid, pos, rot, jrot)
 
     qvel = np.zeros((len(k), humanoid.nv))
     hinges = np.arange(7, humanoid.nq)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import h5py
@@ -116,6 +117,32 @@ def test_wrap_clip_continuous_across_loop(walk_lib: MotionLibrary) -> None:
     step = walk_lib.cycle_shift[0, 0]
     assert step > 0.5
     assert start.qpos[1, 0] - start.qpos[0, 0] == pytest.approx(3 * step, rel=0.05)
+
+
+def test_loop_bend_keeps_the_recorded_ground_clearance(humanoid: Humanoid) -> None:
+    # The jump's first and last keyframes differ by 15-20 deg at the hips and knees. Bending them closed moves the
+    # feet; without the root-height correction the looped jump had its feet 7.9 cm in the floor after the landing,
+    # where the recorded clip (played one-shot, no bend) has them at most 1.8 cm below it.
+    clip = resolve_clips(["jump"])[0]
+    assert clip.loop
+    geometry = BodyGeometry(humanoid)
+    looped = MotionLibrary.from_clips([clip], humanoid)
+    recorded = MotionLibrary.from_clips([replace(clip, loop=False)], humanoid)
+    low_loop = geometry.lowest_points(looped.frames.body_pos, looped.frames.body_rot).min(axis=-1)
+    low_rec = geometry.lowest_points(recorded.frames.body_pos, recorded.frames.body_rot).min(axis=-1)
+    assert low_rec.min() == pytest.approx(-0.018, abs=0.002)
+    assert low_loop.min() > -0.03
+    # Frame by frame: the recorded clearance, minus the seam's own clearance mismatch taken out by a smoothstep over the
+    # last 0.5 s (the wrap grid is time-scaled by < 1 %, so the frames are compared within 1.5 cm, not exactly).
+    n = min(len(low_loop), len(low_rec))
+    u = np.clip((np.arange(n) * DT - (looped.duration[0] - 0.5)) / 0.5, 0.0, 1.0)
+    expected = low_rec[:n] - u * u * (3 - 2 * u) * (low_rec[-1] - low_rec[0])
+    assert np.abs(low_loop[:n] - expected).max() < 0.015
+    # The correction is zero at both ends: the loop stays closed.
+    dur = looped.duration[0]
+    before = looped.query(np.array([0]), np.array([dur - 1e-7]))
+    after = looped.query(np.array([0]), np.array([dur + 1e-7]))
+    assert np.abs(before.body_pos - after.body_pos).max() < 1e-4
 
 
 def test_one_shot_clip_holds_last_frame(lib3: MotionLibrary) -> None:

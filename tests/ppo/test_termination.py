@@ -59,7 +59,9 @@ def test_absolute_rules_fail_on_the_ground_clips(humanoid: Humanoid, clips: dict
     """The previous rules end episodes that track perfectly (the issue's shares of frames)."""
     share = {clip: float(_terminated(ABSOLUTE, humanoid, *data).mean()) for clip, data in clips.items()}
     assert {clip for clip, s in share.items() if s > 0} == {"crawl", "getup_facedown", "getup_faceup", "roll"}
-    np.testing.assert_allclose([share["crawl"], share["getup_facedown"]], [0.424, 0.363], atol=0.005)
+    # The issue counted 42 % for crawl on the reference before the loop bend kept the recorded clearance above the
+    # floor (the bend had sunk crawl's middle up to 9 cm into it); 36 % now.
+    np.testing.assert_allclose([share["crawl"], share["getup_facedown"]], [0.362, 0.363], atol=0.005)
     frames, lowest = clips["getup_faceup"]
     contact = termination(ABSOLUTE, humanoid, frames, frames, np.full(len(lowest), 10_000), lowest)[1]["fall_contact"]
     assert 0.19 < contact.mean() < 0.22  # pelvis, torso or head on the ground in 20 % of the reference's frames
