@@ -9,7 +9,9 @@ frames into
 - **down**: the reference root's height minus the simulated one's;
 - **heading**: the yaw of the simulated root minus the reference's, in degrees (wrapped to +-180).
 It also prints the mean speed along the reference's path, simulated over reference, and the lag's growth in cm/s (a
-line fitted to the along-track offset over the episode): steady lag is a speed bias, a jump is a stumble.
+line fitted to the along-track offset over the episode): steady lag is a speed bias, a jump is a stumble. With
+``--per-episode`` it lists every episode (its start frame, its failure, its distance at the chosen frames, its mean
+distance and that mean's share of the clip's total): a mean made by one stumbling episode shows there.
 
 Run: ``.venv/bin/python benchmarks/root_drift.py runs/st-run --starts 8``
 """
@@ -59,7 +61,8 @@ def play(policy, library, humanoid: Humanoid, protocol: EvalConfig) -> dict[str,
     finally:
         gym.close()
     arrays = {k: np.asarray(v) for k, v in out.items()}
-    arrays.update(clips=clips, episode_max=episode_max, failed_at=failed_at)
+    arrays.update(clips=clips, start_frames=np.rint(times / library.dt).astype(int), episode_max=episode_max,
+                  failed_at=failed_at)  # fmt: skip
     return arrays
 
 
@@ -86,6 +89,18 @@ def split(d: dict[str, np.ndarray], smooth: int = 15) -> dict[str, np.ndarray]:
             "moving": moving}  # fmt: skip
 
 
+def episode_rows(distance: np.ndarray, episode_max: np.ndarray, frames: list[int]) -> list[dict[str, object]]:
+    """Per episode: the distance at ``frames`` (NaN past its horizon), its mean and max over its horizon, and its
+    mean's share of the sum of the episodes' means (the episodes given: one clip's). Distances in m, shape (T, N)."""
+    T, N = distance.shape
+    live = np.arange(T)[:, None] < episode_max[None, :]
+    means = np.array([distance[live[:, n], n].mean() for n in range(N)])
+    total = means.sum()
+    return [{"at": [float(distance[f, n]) if f < min(T, episode_max[n]) else float("nan") for f in frames],
+             "mean": float(means[n]), "max": float(distance[live[:, n], n].max()),
+             "share": float(means[n] / total) if total > 0 else float("nan")} for n in range(N)]  # fmt: skip
+
+
 def lag_rate(along: np.ndarray, dt: float) -> float:
     """Slope in cm/s of a line fitted to the along-track offset (all episodes, frames with a direction)."""
     t = np.arange(along.shape[0])[:, None].repeat(along.shape[1], axis=1) * dt
@@ -102,6 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--starts", type=int, default=None, help="start frames per clip (default: the run's protocol)")
     parser.add_argument("--frames", type=int, nargs="+", default=[30, 60, 120, 240, 480],
                         help="frames at which the offsets are printed")  # fmt: skip
+    parser.add_argument("--per-episode", action="store_true",
+                        help="also list every episode: start frame, failure, distance at --frames, mean, max and the "
+                             "mean's share of the clip's total")  # fmt: skip
     parser.add_argument("--checkpoint", type=int, default=None, help="iteration of the checkpoint (default: newest)")
     return parser
 
@@ -144,6 +162,13 @@ def main(argv: list[str] | None = None) -> int:
             cm = [100 * m(parts[k]) for k in ("distance", "along", "cross")] + [100 * m(np.abs(parts["cross"]))]
             print(f"{f:>6} {cm[0]:>9.1f} {cm[1]:>8.1f} {cm[2]:>8.1f} {cm[3]:>8.1f} {100 * m(parts['down']):>7.1f} "
                   f"{m(parts['heading']):>8.1f} {m(np.abs(parts['heading'])):>9.1f}")  # fmt: skip
+        if args.per_episode:
+            rows = episode_rows(parts["distance"][:, eps], d["episode_max"][eps], args.frames)
+            print(f"{'start':>6} {'failed':>6}  distance (cm) at frames {args.frames}, mean, max, share of the mean")
+            for start, failed, row in zip(d["start_frames"][eps], fails, rows):
+                at = " ".join(f"{100 * x:6.1f}" for x in row["at"])
+                print(f"{start:>6} {failed if failed >= 0 else '-':>6}  {at}  {100 * row['mean']:6.1f} "
+                      f"{100 * row['max']:6.1f} {100 * row['share']:5.0f} %")  # fmt: skip
     return 0
 
 

@@ -54,3 +54,15 @@ def test_a_standing_reference_has_no_direction_and_lag_rate_fits_a_line() -> Non
     assert np.isnan(parts["along"]).all() and np.isnan(parts["cross"]).all()
     along = (np.arange(T) / 60.0 * -0.25)[:, None]  # falling behind at 25 cm/s
     assert module.lag_rate(along, 1 / 60.0) == pytest.approx(-25.0)
+
+
+def test_episode_rows_by_hand() -> None:
+    rows = _module().episode_rows
+    # Two episodes of 4 frames; the second ends after 2 (its later frames are past its horizon and do not count).
+    distance = np.array([[0.0, 0.1], [0.2, 0.3], [0.4, 9.0], [0.2, 9.0]])
+    got = rows(distance, np.array([4, 2]), [1, 3])
+    assert got[0]["at"] == pytest.approx([0.2, 0.2]) and got[0]["mean"] == pytest.approx(0.2)
+    assert got[0]["max"] == pytest.approx(0.4)
+    assert got[1]["at"][0] == pytest.approx(0.3) and np.isnan(got[1]["at"][1])
+    assert got[1]["mean"] == pytest.approx(0.2) and got[1]["max"] == pytest.approx(0.3)
+    assert got[0]["share"] == pytest.approx(0.5) and got[1]["share"] == pytest.approx(0.5)
