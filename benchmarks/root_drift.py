@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.per_episode:
             rows = episode_rows(parts["distance"][:, eps], d["episode_max"][eps], args.frames)
             print(f"{'start':>6} {'failed':>6}  distance (cm) at frames {args.frames}, mean, max, share of the mean")
-            for start, failed, row in zip(d["start_frames"][eps], fails, rows):
+            for start, failed, row in zip(d["start_frames"][eps], fails, rows, strict=True):
                 at = " ".join(f"{100 * x:6.1f}" for x in row["at"])
                 print(f"{start:>6} {failed if failed >= 0 else '-':>6}  {at}  {100 * row['mean']:6.1f} "
                       f"{100 * row['max']:6.1f} {100 * row['share']:5.0f} %")  # fmt: skip

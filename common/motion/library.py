@@ -10,9 +10,9 @@ last keyframe. Because mocap loops never close exactly, the joint rotations, roo
 bent towards the first keyframe over the cycle (the mismatch e at the end is applied as s/D * e at time s), so
 that pose and velocities stay continuous across the loop point instead of jumping once per cycle. Bending the legs
 moves the feet up or down: the root height is then corrected per keyframe so that the character's lowest point stays
-where the clip had it (the seam's own clearance mismatch is taken out over the cycle's last half second). Without that correction the
-jump clip's 15-20 deg hip and knee mismatch put its feet 7.9 cm into the floor after the landing, where the clip as
-recorded has them at most 1.8 cm below it.
+where the clip had it (the seam's own clearance mismatch is taken out over the cycle's last half second). Without
+that correction the jump clip's 15-20 deg hip and knee mismatch put its feet 7.9 cm into the floor after the landing,
+where the clip as recorded has them at most 1.8 cm below it.
 """
 
 from __future__ import annotations
