@@ -6,10 +6,10 @@ angular velocity, computed with MuJoCo's own kinematics (``mj_kinematics``/``mj_
 
 Looping (``wrap``) clips continue past their end: cycle c is the first cycle moved by the rigid ground-plane
 transform Delta^c, where Delta takes the root's ground position and heading at the first keyframe to those at the
-last keyframe. Because mocap loops never close exactly, the joint rotations, root height and root tilt are
-bent towards the first keyframe over the cycle (the mismatch e at the end is applied as s/D * e at time s), so
-that pose and velocities stay continuous across the loop point instead of jumping once per cycle. Bending the legs
-moves the feet up or down: the root height is then corrected per keyframe so that the character's lowest point stays
+last keyframe. Because mocap loops never close exactly, the joint rotations and root tilt are bent towards the
+first keyframe over the cycle (the mismatch e at the end is applied as s/D * e at time s), so that pose and
+velocities stay continuous across the loop point instead of jumping once per cycle. Bending the legs moves the
+feet up or down: the root height is set per keyframe so that the character's lowest point stays
 where the clip had it (the seam's own clearance mismatch is taken out over the cycle's last half second). Without
 that correction the jump clip's 15-20 deg hip and knee mismatch put its feet 7.9 cm into the floor after the landing,
 where the clip as recorded has them at most 1.8 cm below it.
@@ -65,8 +65,8 @@ class ClipFrames:
 def _bend_loop(clip: Clip, humanoid: Humanoid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closes a wrap clip's loop: returns root_pos, root_rot, joint_rot bent towards the first keyframe.
 
-    The joint rotations, root tilt and root height are bent by s/D of the seam mismatch at time s. The bend changes
-    how far the feet (or hands, or back) reach down, so the root height is then shifted per keyframe by
+    The joint rotations and root tilt are bent by s/D of the seam mismatch at time s. The bend changes how far the
+    feet (or hands, or back) reach down, so the root height is shifted per keyframe by
     c(s) = (h(s) - h_bent(s)) - w(s) (h(D) - h(0)), h being the lowest point of the character's collision geoms: the
     bent clip keeps the recorded clip's clearance above the floor, except for the seam's own clearance mismatch
     h(D) - h(0), which is taken out over the last :data:`SEAM_BLEND` seconds (w a smoothstep from 0 to 1 there):
@@ -74,8 +74,7 @@ def _bend_loop(clip: Clip, humanoid: Humanoid) -> tuple[np.ndarray, np.ndarray, 
     keyframes are 8.8 cm in the floor). c is 0 at both ends, so the loop stays closed.
     """
     s = (clip.times / clip.duration)[:, None]
-    root_pos = clip.root_pos.copy()
-    root_pos[:, 2] += s[:, 0] * (clip.root_pos[0, 2] - clip.root_pos[-1, 2])
+    root_pos = clip.root_pos.copy()  # its height is set by the clearance correction below
     heading, tilt = quat_split_heading(clip.root_rot)
     tilt_err = quat_to_rotvec(quat_mul(tilt[0], quat_conj(tilt[-1])))
     tilt = quat_mul(quat_from_rotvec(s * tilt_err), tilt)
