@@ -145,6 +145,11 @@ class FeedbackConfig:
             b = a* - M s* through the chosen trajectory's offset a* and start features s*, so that on its own states
             the policy replays the open-loop trajectory. The elite of one search are mostly noise around many
             different offsets, so their mean offset need not track at all (walk, measured: see the README).
+            ``nearest``: the path anchor through every searched path (the one from the clip's start and the
+            ``starts`` ones): at a segment's start the policy takes the path whose start features are nearest
+            (each feature scaled by its spread over the regression samples) and applies ``a*_p + M (s - s*_p)``.
+            An evaluation episode starts on the reference, where a search from that phase started, not where the
+            search from frame 0 has drifted to; with ``starts: 0`` it is ``path``.
         fresh_share: Share of the candidates started on the reference state at their segment's start, as an
             evaluation episode starts, so that the regression also sees the states the policy is started from (they
             never become kept states). 0: the plain search.
@@ -159,7 +164,7 @@ class FeedbackConfig:
 
     samples: int = 60
     ridge: float = 0.1
-    anchor: Literal["mean", "path"] = "path"
+    anchor: Literal["mean", "path", "nearest"] = "path"
     fresh_share: float = 0.0
     starts: int = 0
     refine_iterations: int = 0

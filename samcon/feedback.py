@@ -46,19 +46,38 @@ def fit_linear(features: np.ndarray, actions: np.ndarray, ridge: float) -> tuple
 
 @dataclass
 class ClipPlan:
-    """What a SAMCON run holds for one clip. S segments, F frames.
+    """What a SAMCON run holds for one clip. S segments, F frames, P searched paths.
 
     Attributes:
         targets: Open-loop PD targets from the clip's start. Shape: (F, nu).
         bounds: First frame of each segment and F. Shape: (S + 1,).
         gain: Feedback gains M_k. Shape: (S, nu, D).
         bias: Feedback offsets b_k. Shape: (S, nu).
+        anchor_features: With ``feedback.anchor: nearest``, the start features s*_p of every searched path p
+            (the search from the clip's start and the ``feedback.starts`` ones) at every segment it covers, NaN
+            where it does not. Shape: (S, P, D). None: the policy is ``M_k s + b_k``.
+        anchor_offsets: Those paths' chosen offsets a*_p. Shape: (S, P, nu).
+        feature_scale: Per feature, the spread the distance to an anchor is measured in. Shape: (D,).
     """
 
     targets: np.ndarray
     bounds: np.ndarray
     gain: np.ndarray
     bias: np.ndarray
+    anchor_features: np.ndarray | None = None
+    anchor_offsets: np.ndarray | None = None
+    feature_scale: np.ndarray | None = None
+
+    def offset(self, k: int, s: np.ndarray) -> np.ndarray:
+        """The offset of segment ``k`` for features ``s`` (D,): ``M_k s + b_k``, or with anchors
+        ``a*_p + M_k (s - s*_p)`` through the path p whose start features are nearest to ``s`` (scaled by
+        ``feature_scale``): on any searched path's own states the policy replays that path. Shape: (nu,)."""
+        if self.anchor_features is None:
+            return self.gain[k] @ s + self.bias[k]
+        have = ~np.isnan(self.anchor_features[k, :, 0])
+        diff = s - self.anchor_features[k, have]
+        p = int(np.argmin(np.square(diff / self.feature_scale).sum(axis=1)))
+        return self.anchor_offsets[k, have][p] + self.gain[k] @ diff[p]
 
 
 def _frame_index(result: StepResult, dt: float) -> np.ndarray:
@@ -122,6 +141,6 @@ class FeedbackPolicy:
             s = feedback_features(self.humanoid, result.sim[ids], result.ref[ids])
             for j, i in enumerate(ids):
                 plan = self.plans.get(self.library.names[result.clip[i]])
-                self._held[i] = 0.0 if plan is None else plan.gain[seg[i]] @ s[j] + plan.bias[seg[i]]
+                self._held[i] = 0.0 if plan is None else plan.offset(seg[i], s[j])
         self._episode, self._segment = result.episode_id.copy(), seg
         return result.ref_next.qpos[:, self.humanoid.hinge_qpos] + self._held

@@ -3,7 +3,9 @@
 Layout (``samcon.h5``): attribute ``format = mimictrack.samcon``, ``version``, ``control_hz``, ``features`` (names);
 group ``clips/<name>`` with datasets ``targets`` (F, nu), ``offsets`` (S, nu), ``bounds`` (S + 1,),
 ``segment_cost`` (S,), ``terms/<term>`` (S,), ``start_state`` (nstate,), ``end_states`` (S, nstate), ``gain``
-(S, nu, D), ``bias`` (S, nu) and attributes ``samples``, ``seconds``. Written to a temporary file and renamed.
+(S, nu, D), ``bias`` (S, nu), with ``feedback.anchor: nearest`` also ``anchor_features`` (S, P, D),
+``anchor_offsets`` (S, P, nu) and ``feature_scale`` (D,) (see :class:`samcon.feedback.ClipPlan`), and attributes
+``samples``, ``seconds``. Written to a temporary file and renamed.
 """
 
 from __future__ import annotations
@@ -23,22 +25,26 @@ VERSION = 1
 FILE_NAME = "samcon.h5"
 
 
-def save(path: str | Path, control_hz: float, results: list[tuple[Trajectory, np.ndarray, np.ndarray]]) -> None:
-    """Writes [(trajectory, gain (S, nu, D), bias (S, nu))] atomically."""
+_ANCHORS = ("anchor_features", "anchor_offsets", "feature_scale")
+
+
+def save(path: str | Path, control_hz: float, results: list[tuple[Trajectory, ClipPlan]]) -> None:
+    """Writes [(trajectory, its plan)] atomically."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     try:
         with h5py.File(tmp, "w") as f:
             f.attrs.update(format=FORMAT, version=VERSION, control_hz=control_hz)
             f.attrs["features"] = np.array(FEATURE_NAMES, dtype="S")
-            for traj, gain, bias in results:
+            for traj, plan in results:
                 g = f.create_group(f"clips/{traj.clip}")
                 for name in ("targets", "offsets", "bounds", "segment_cost", "start_state", "end_states"):
                     g.create_dataset(name, data=getattr(traj, name))
                 for name, values in traj.segment_terms.items():
                     g.create_dataset(f"terms/{name}", data=values)
-                g.create_dataset("gain", data=gain)
-                g.create_dataset("bias", data=bias)
+                for name in ("gain", "bias", *_ANCHORS):
+                    if getattr(plan, name) is not None:
+                        g.create_dataset(name, data=getattr(plan, name))
                 g.attrs.update(samples=traj.samples, seconds=traj.seconds, backtracks=traj.backtracks)
         os.replace(tmp, path)
     finally:
@@ -66,7 +72,8 @@ def load_plans(path: str | Path, control_hz: float) -> tuple[dict[str, ClipPlan]
             raise ValueError(f"{path}: feedback features {list(f.attrs['features'])} differ from this version's")
         plans, info = {}, {}
         for name, g in f["clips"].items():
+            anchors = {k: g[k][()] for k in _ANCHORS if k in g}
             plans[name] = ClipPlan(targets=g["targets"][()], bounds=g["bounds"][()], gain=g["gain"][()],
-                                   bias=g["bias"][()])  # fmt: skip
+                                   bias=g["bias"][()], **anchors)  # fmt: skip
             info[name] = {"samples": int(g.attrs["samples"]), "seconds": float(g.attrs["seconds"])}
     return plans, info

@@ -80,14 +80,34 @@ def extra_starts(library: MotionLibrary, clip: int, frames: int, segment_frames:
 
 
 def anchored(traj: Trajectory, config: FeedbackConfig, gain: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, ...]:
-    """With ``feedback.anchor: path``, the bias that puts ``traj``'s offsets at its own start features."""
-    if config.anchor == "path":
+    """With ``feedback.anchor: path`` (or ``nearest``, whose first path is this one), the bias that puts ``traj``'s
+    offsets at its own start features."""
+    if config.anchor in ("path", "nearest"):
         bias = traj.offsets - np.einsum("kad,kd->ka", gain, traj.path_features)
     return gain, bias
 
 
+def path_anchors(traj: Trajectory, extra: Sequence[Trajectory] = ()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every searched path's start features and offsets per segment of ``traj``'s grid (NaN where a path does not
+    cover a segment), path 0 being ``traj``, and the features' spread over all regression samples.
+
+    Returns:
+        anchor_features (S, P, D), anchor_offsets (S, P, nu), feature_scale (D,).
+    """
+    paths = [traj, *extra]
+    (nseg, dim), nu = traj.path_features.shape, traj.offsets.shape[1]
+    features, offsets = np.full((nseg, len(paths), dim), np.nan), np.full((nseg, len(paths), nu), np.nan)
+    for p, path in enumerate(paths):
+        first = pooled_offset(traj, path)
+        if first + len(path.offsets) != nseg or first >= nseg or traj.bounds[first] != path.bounds[0]:
+            raise ValueError(f"{traj.clip}: a search from frame {path.bounds[0]} is not on the clip's segment grid")
+        features[first:, p], offsets[first:, p] = path.path_features, path.offsets
+    pooled = np.concatenate([s for path in paths for s in path.features])
+    return features, offsets, np.maximum(pooled.std(axis=0), 1e-6)
+
+
 def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, clip: int, rng: np.random.Generator,
-               log: Any) -> tuple[Trajectory, np.ndarray, np.ndarray]:  # fmt: skip
+               log: Any) -> tuple[Trajectory, ClipPlan]:  # fmt: skip
     """SAMCON on one clip, the feedback fit, and its refinements; prints progress per segment into ``log``."""
     name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
 
@@ -122,7 +142,10 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
         gain, bias = anchored(traj, cfg.feedback, *fit_samples(again, cfg.feedback, extra))
     # The oracle's minutes are the open-loop search's; the feedback's extra searches are counted apart.
     traj.feedback_seconds, traj.feedback_samples = feedback_seconds, feedback_samples
-    return traj, gain, bias
+    plan = ClipPlan(traj.targets, traj.bounds, gain, bias)
+    if cfg.feedback.anchor == "nearest":
+        plan.anchor_features, plan.anchor_offsets, plan.feature_scale = path_anchors(traj, extra)
+    return traj, plan
 
 
 def diagnose(traj: Trajectory, cfg: SamconConfig) -> dict[str, Any]:
@@ -133,10 +156,10 @@ def diagnose(traj: Trajectory, cfg: SamconConfig) -> dict[str, Any]:
             "first_fall_frame": int(traj.bounds[fell[0]]) if len(fell) else None}  # fmt: skip
 
 
-def _clip_rows(library: MotionLibrary, results: list[tuple[Trajectory, np.ndarray, np.ndarray]],
+def _clip_rows(library: MotionLibrary, results: list[tuple[Trajectory, ClipPlan]],
                open_loop: EvalResult, feedback: EvalResult, cfg: SamconConfig) -> dict[str, Any]:  # fmt: skip
     rows = {}
-    for c, (traj, _, _) in enumerate(results):
+    for c, (traj, _) in enumerate(results):
         seconds_of_motion = traj.frames * library.dt
         rows[traj.clip] = {
             "frames": traj.frames, "samples": traj.samples, "backtracks": traj.backtracks,
@@ -191,14 +214,14 @@ def main(argv: Sequence[str] | None = None) -> None:
                    for c, name in enumerate(library.names)]  # fmt: skip
         seconds = time.perf_counter() - t0
         store.save(run_dir.path / store.FILE_NAME, humanoid.physics.control_hz, results)
-        plans = {t.clip: ClipPlan(t.targets, t.bounds, g, b) for t, g, b in results}
+        plans = {traj.clip: plan for traj, plan in results}
         ev = cfg.train.eval
         open_loop = evaluate(open_loop_policy(plans, library, humanoid), library, humanoid,
                              replace(ev, starts_per_clip=1, max_frames=cfg.train.max_frames))  # fmt: skip
         feedback = evaluate(FeedbackPolicy(plans, library, humanoid), library, humanoid, ev)
         print(f"open loop from each clip's start:\n{open_loop.table()}", file=log, flush=True)
         print(f"linear feedback ({ev.starts_per_clip} starts per clip):\n{feedback.table()}", file=log, flush=True)
-    samples = int(sum(t.samples for t, _, _ in results))
+    samples = int(sum(traj.samples for traj, _ in results))
     out = {"clips": _clip_rows(library, results, open_loop, feedback, cfg), "seconds": seconds, "samples": samples,
            "open_loop_overall": open_loop.overall, "feedback_overall": feedback.overall}  # fmt: skip
     with atomic_output(run_dir.path / "results.json") as tmp:

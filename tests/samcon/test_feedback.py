@@ -63,3 +63,49 @@ def test_a_later_search_joins_the_regression_of_the_segments_it_covers() -> None
     pooled, _ = fit_samples(main, cfg, [later])
     assert np.abs(alone[1] - gain[1]).max() > 0.1
     np.testing.assert_allclose(pooled[1:], gain[1:], atol=1e-9)
+
+
+def test_nearest_anchor_follows_the_nearest_searched_path() -> None:
+    gain = np.array([[[1.0, 0.0], [0.0, 2.0]]])  # one segment, 2 actuators, 2 features
+    # Path 0 starts the segment at s* = (1, 0) with offset (10, 10), path 1 at (0, 0) with (20, 30); path 2 does not
+    # cover it (NaN) and must never be chosen, though its features would be nearest.
+    feats = np.array([[[1.0, 0.0], [0.0, 0.0], [np.nan, np.nan]]])
+    offs = np.array([[[10.0, 10.0], [20.0, 30.0], [np.nan, np.nan]]])
+    plan = ClipPlan(np.zeros((6, 2)), np.array([0, 6]), gain, np.zeros((1, 2)), feats, offs, np.array([1.0, 0.1]))
+    # s = (0.8, 0.05): scaled squared distances 0.04 + 0.25 to path 0, 0.64 + 0.25 to path 1: path 0,
+    # a = (10, 10) + M (-0.2, 0.05) = (9.8, 10.1).
+    np.testing.assert_allclose(plan.offset(0, np.array([0.8, 0.05])), [9.8, 10.1])
+    # s = (0.4, 0.3): 0.36 + 9 to path 0, 0.16 + 9 to path 1 (feature 2 is scaled by 0.1): path 1,
+    # a = (20, 30) + M (0.4, 0.3) = (20.4, 30.6).
+    np.testing.assert_allclose(plan.offset(0, np.array([0.4, 0.3])), [20.4, 30.6])
+    # With one path, the anchor is the path anchor b = a* - M s*: the same offset for any s.
+    one = ClipPlan(plan.targets, plan.bounds, gain, offs[:, 0] - np.einsum("kad,kd->ka", gain, feats[:, 0]),
+                   feats[:, :1], offs[:, :1], np.ones(2))  # fmt: skip
+    bare = ClipPlan(plan.targets, plan.bounds, gain, one.bias)
+    for s in (np.array([0.3, -2.0]), np.array([5.0, 1.0])):
+        np.testing.assert_allclose(one.offset(0, s), bare.offset(0, s), atol=1e-12)
+
+
+def test_path_anchors_put_each_search_on_the_segments_it_covers() -> None:
+    from types import SimpleNamespace
+
+    import pytest
+
+    from samcon.track import path_anchors
+
+    rng = np.random.default_rng(3)
+    main = SimpleNamespace(clip="walk", bounds=np.array([0, 6, 12, 18]), path_features=rng.normal(size=(3, 2)),
+                           offsets=rng.normal(size=(3, 4)), features=[np.array([[0.0, 0.0], [2.0, 4.0]])])  # fmt: skip
+    later = SimpleNamespace(clip="walk", bounds=np.array([12, 18]), path_features=rng.normal(size=(1, 2)),
+                            offsets=rng.normal(size=(1, 4)), features=[np.array([[1.0, 2.0], [3.0, 6.0]])])  # fmt: skip
+    feats, offs, scale = path_anchors(main, [later])
+    assert feats.shape == (3, 2, 2) and offs.shape == (3, 2, 4)
+    np.testing.assert_array_equal(feats[:, 0], main.path_features)
+    np.testing.assert_array_equal(offs[2, 1], later.offsets[0])
+    assert np.isnan(feats[:2, 1]).all() and np.isnan(offs[:2, 1]).all()
+    # The spread of the pooled regression features (0, 2, 1, 3) and (0, 4, 2, 6): std sqrt(1.25) and sqrt(5).
+    np.testing.assert_allclose(scale, [np.sqrt(1.25), np.sqrt(5.0)])
+    # A search from frame 9 (between segment starts) or one ending early is not on the grid: refused.
+    for bad in ({"bounds": np.array([9, 18])}, {"bounds": np.array([6, 12]), "path_features": np.zeros((1, 2))}):
+        with pytest.raises(ValueError, match="segment grid"):
+            path_anchors(main, [SimpleNamespace(**{**vars(later), **bad})])

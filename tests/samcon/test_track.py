@@ -87,3 +87,24 @@ def test_a_run_without_its_policy_file_is_refused(run: Path, tmp_path: Path) -> 
         (copy / name).write_bytes((run / name).read_bytes())
     with pytest.raises(ReportError, match="unfinished run: no samcon.h5"):
         load_run(copy)
+
+
+def test_nearest_anchor_run_stores_every_searched_path(run: Path, tmp_path: Path) -> None:
+    """``feedback.anchor=nearest`` searches and fits exactly as ``path`` (the module's run) and adds the anchors of
+    both searches (from frame 0 and from frame 3) to the file; the report evaluates the policy they make."""
+    import h5py
+
+    out = tmp_path / "nearest"
+    main(["--config", DEBUG, "--out", str(out), "--set", "feedback.anchor=nearest"])
+    with h5py.File(run / "samcon.h5") as path, h5py.File(out / "samcon.h5") as nearest:
+        for name in ("targets", "gain", "bias"):
+            np.testing.assert_array_equal(nearest["clips/walk"][name][()], path["clips/walk"][name][()])
+        assert "anchor_features" not in path["clips/walk"]
+        feats, offs = nearest["clips/walk/anchor_features"][()], nearest["clips/walk/anchor_offsets"][()]
+        assert feats.shape[:2] == (2, 2) and offs.shape[:2] == (2, 2)
+        # Path 0 is the search from the clip's start; path 1 starts at frame 3, segment 1, on the reference.
+        np.testing.assert_array_equal(offs[:, 0], nearest["clips/walk/offsets"][()])
+        assert np.isnan(feats[0, 1]).all() and not np.isnan(feats[1, 1]).any()
+    results = json.loads((out / "results.json").read_text())["clips"]["walk"]
+    report = build_report([out], tmp_path / "report", max_frames=6, do_render=False)
+    assert report.results[0].per_clip["mpjpe_g"][0] == pytest.approx(results["feedback"]["mpjpe_g"], rel=1e-12)
