@@ -1,0 +1,48 @@
+"""benchmarks/run_curve.py: one row per evaluation, training columns averaged since the previous one, by hand."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _module():
+    spec = importlib.util.spec_from_file_location("run_curve", ROOT / "benchmarks" / "run_curve.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["run_curve"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_each_evaluation_gets_the_mean_of_the_training_records_before_it() -> None:
+    records = [
+        {"iteration": 10, "samples": 1000, "wall_clock_s": 10.0, "charts/mean_reward": 0.5,
+         "charts/term/body_pos_per_1k": 4.0, "reward/root_pos": 0.9},
+        {"iteration": 20, "samples": 2000, "wall_clock_s": 20.0, "charts/mean_reward": 0.7,
+         "charts/term/body_pos_per_1k": 2.0, "reward/root_pos": 0.8},
+        {"iteration": 20, "samples": 2000, "wall_clock_s": 30.0, "eval/mpjpe_g": 123.45, "eval/mpjpe_l": 50.0,
+         "eval/survival": 0.75, "eval/success": 0.5},
+        {"iteration": 30, "samples": 3_500_000, "wall_clock_s": 600.0, "charts/mean_reward": 0.9},
+        {"iteration": 30, "samples": 3_500_000, "wall_clock_s": 600.0, "eval/mpjpe_g": 60.0, "eval/mpjpe_l": 30.0,
+         "eval/survival": 1.0, "eval/success": 1.0},
+    ]  # fmt: skip
+    header, rows = _module().curve_rows(records)
+    assert header == ["min", "samples", "MPJPE-g", "MPJPE-l", "surv", "succ", "reward", "body_pos/1k",
+                      "reward/root_pos"]  # fmt: skip
+    # First evaluation: reward (0.5 + 0.7) / 2, body_pos ends (4 + 2) / 2, root_pos term (0.9 + 0.8) / 2.
+    assert rows[0] == ["0.5", "0.00M", "123.5", "50.0", "0.75", "0.50", "0.600", "3.0", "0.850"]
+    # Second: only the one record since; the keys it lacks are "-".
+    assert rows[1] == ["10.0", "3.50M", "60.0", "30.0", "1.00", "1.00", "0.900", "-", "-"]
+
+
+def test_a_broken_record_is_named_by_file_and_line(tmp_path: Path) -> None:
+    path = tmp_path / "metrics.jsonl"
+    path.write_text(json.dumps({"iteration": 1}) + "\n{not json\n", encoding="utf-8")
+    with pytest.raises(ValueError, match=r"metrics.jsonl:2: not a JSON record"):
+        _module().read_metrics(path)
