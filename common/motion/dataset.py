@@ -8,6 +8,7 @@ a dataset built for another rate or character is refused rather than silently mi
 from __future__ import annotations
 
 import os
+import warnings
 from importlib import resources
 from pathlib import Path
 
@@ -27,7 +28,10 @@ from common.motion.motion import (
 )
 
 DATASET_FORMAT = "mimictrack.motion_dataset"
-DATASET_VERSION = 1
+DATASET_VERSION = 2
+"""2: looped clips keep the recorded floor clearance (session 13's loop bend). Version 1 files still load, with a
+warning when they hold a looped clip: its frames may have the feet up to 9 cm in the floor (jump, crawl)."""
+READABLE_VERSIONS = (1, 2)
 
 
 def bundled_motion_dir() -> Path:
@@ -151,10 +155,11 @@ def load_dataset(path: str | Path, humanoid: Humanoid) -> MotionLibrary:
         with h5py.File(path, "r") as f:
             if f.attrs.get("format") != DATASET_FORMAT:
                 raise MotionFormatError(f"{path}: not a motion dataset (format {f.attrs.get('format')!r})")
-            if f.attrs.get("version") != DATASET_VERSION:
+            version = f.attrs.get("version")
+            if version not in READABLE_VERSIONS:
                 raise MotionFormatError(
-                    f"{path}: motion dataset version {f.attrs.get('version')}, this code reads {DATASET_VERSION};"
-                    " rebuild it with `mimic-motions convert`"
+                    f"{path}: motion dataset version {version}, this code reads"
+                    f" {' and '.join(map(str, READABLE_VERSIONS))}; rebuild it with `mimic-motions convert`"
                 )
             if not np.isclose(f.attrs["control_hz"], humanoid.physics.control_hz):
                 raise MotionFormatError(
@@ -182,4 +187,9 @@ def load_dataset(path: str | Path, humanoid: Humanoid) -> MotionLibrary:
                 )
     except (OSError, KeyError) as e:
         raise MotionFormatError(f"{path}: unreadable or incomplete motion dataset ({e})") from None
+    looped = [c.name for c in clips if c.loop]
+    if version == 1 and looped:
+        warnings.warn(f"{path}: a version-1 motion dataset: its looped clips ({', '.join(looped)}) were bent before "
+                      "the loop fix of session 13 and may have their feet in the floor; rebuild it with "
+                      "`mimic-motions convert` from the source clips", stacklevel=2)  # fmt: skip
     return MotionLibrary(clips, humanoid.physics.control_dt)

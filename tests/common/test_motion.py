@@ -290,6 +290,11 @@ def test_dataset_truncated_or_other_version_fails_clearly(
         f.attrs["version"] = 99
     with pytest.raises(MotionFormatError, match="version 99"):
         load_dataset(path, humanoid)
+    # Version 1 (before the loop fix) loads, with a warning naming the looped clips and the way out.
+    with h5py.File(path, "a") as f:
+        f.attrs["version"] = 1
+    with pytest.warns(UserWarning, match=r"version-1 motion dataset: its looped clips \(walk\).*mimic-motions convert"):
+        assert load_dataset(path, humanoid).names == walk_lib.names
     from common.character.humanoid import PhysicsConfig
 
     save_dataset(path, walk_lib, humanoid)
