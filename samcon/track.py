@@ -221,9 +221,21 @@ def main(argv: Sequence[str] | None = None) -> None:
         feedback = evaluate(FeedbackPolicy(plans, library, humanoid), library, humanoid, ev)
         print(f"open loop from each clip's start:\n{open_loop.table()}", file=log, flush=True)
         print(f"linear feedback ({ev.starts_per_clip} starts per clip):\n{feedback.table()}", file=log, flush=True)
+        path_only = None
+        if cfg.feedback.anchor == "nearest":
+            # The same searches and gains anchored on the path from frame 0 alone: what the other paths add.
+            alone = {k: replace(p, anchor_features=None, anchor_offsets=None, feature_scale=None)
+                     for k, p in plans.items()}  # fmt: skip
+            path_only = evaluate(FeedbackPolicy(alone, library, humanoid), library, humanoid, ev)
+            print(f"the same, anchored on the path from frame 0 alone:\n{path_only.table()}", file=log, flush=True)
     samples = int(sum(traj.samples for traj, _ in results))
     out = {"clips": _clip_rows(library, results, open_loop, feedback, cfg), "seconds": seconds, "samples": samples,
            "open_loop_overall": open_loop.overall, "feedback_overall": feedback.overall}  # fmt: skip
+    if path_only is not None:
+        out["feedback_path_anchor_overall"] = path_only.overall
+        for c, name in enumerate(library.names):
+            keys = ("mpjpe_g", "mpjpe_l", "survival", "success")
+            out["clips"][name]["feedback_path_anchor"] = {k: float(path_only.per_clip[k][c]) for k in keys}
     with atomic_output(run_dir.path / "results.json") as tmp:
         tmp.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
     # The report takes the run's policy from this file (a SAMCON run has no training checkpoints).
@@ -232,8 +244,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         tmp.write_text(json.dumps(info, indent=2, default=str) + "\n", encoding="utf-8")
     for name, row in out["clips"].items():
         ol, fb = row["open_loop"], row["feedback"]
+        alone = row.get("feedback_path_anchor")
+        also = "" if alone is None else f" (anchored on the first path alone: {alone['survival']:.0%})"
         print(f"{name}: open loop MPJPE-g {ol['mpjpe_g']:.1f} mm, MPJPE-l {ol['mpjpe_l']:.1f} mm, survived "
-              f"{ol['survival']:.0%}; feedback survival {fb['survival']:.0%}, MPJPE-g {fb['mpjpe_g']:.1f} mm; "
+              f"{ol['survival']:.0%}; feedback survival {fb['survival']:.0%}{also}, MPJPE-g {fb['mpjpe_g']:.1f} mm; "
               f"{row['minutes_per_motion_second']:.2f} min per s of motion, {row['samples']} samples")  # fmt: skip
     print(f"run: {run_dir.path}")
 

@@ -108,3 +108,7 @@ def test_nearest_anchor_run_stores_every_searched_path(run: Path, tmp_path: Path
     results = json.loads((out / "results.json").read_text())["clips"]["walk"]
     report = build_report([out], tmp_path / "report", max_frames=6, do_render=False)
     assert report.results[0].per_clip["mpjpe_g"][0] == pytest.approx(results["feedback"]["mpjpe_g"], rel=1e-12)
+    # The same gains on the first path alone are the module's path-anchored run, figure for figure.
+    path_results = json.loads((run / "results.json").read_text())["clips"]["walk"]["feedback"]
+    for key in ("mpjpe_g", "mpjpe_l", "survival"):
+        assert results["feedback_path_anchor"][key] == pytest.approx(path_results[key], rel=1e-12)
