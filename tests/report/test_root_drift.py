@@ -2,22 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.benchmark_module import benchmark_module
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location("root_drift", ROOT / "benchmarks" / "root_drift.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["root_drift"] = module
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_module("root_drift")
 
 
 def test_offsets_split_along_the_direction_of_travel() -> None:

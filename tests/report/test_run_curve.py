@@ -2,22 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.benchmark_module import benchmark_module
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location("run_curve", ROOT / "benchmarks" / "run_curve.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["run_curve"] = module
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_module("run_curve")
 
 
 def test_each_evaluation_gets_the_mean_of_the_training_records_before_it() -> None:

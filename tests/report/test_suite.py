@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -11,18 +10,11 @@ import numpy as np
 import pytest
 
 from report.tables import fmt
-
-ROOT = Path(__file__).resolve().parents[2]
+from tests.benchmark_module import benchmark_module
 
 
 def _suite_module():
-    if "compare_trackers" in sys.modules:
-        return sys.modules["compare_trackers"]
-    spec = importlib.util.spec_from_file_location("compare_trackers", ROOT / "benchmarks" / "compare_trackers.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["compare_trackers"] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_module("compare_trackers")
 
 
 @pytest.fixture(scope="module")

@@ -313,12 +313,9 @@ def test_a_checkpoint_from_before_the_collector_still_loads(runs: dict[str, Path
 def test_world_model_bodies_per_clip_errors(runs: dict[str, Path], capsys: pytest.CaptureFixture[str]) -> None:
     """benchmarks/world_model_bodies.py --motions: the constant-velocity columns are |v_t - v_t+1| per body, read
     from the packed layout by hand (vel at columns 7:10, angvel at 10:13), and the per-clip table names every body."""
-    import importlib.util
+    from tests.benchmark_module import benchmark_module
 
-    path = Path(__file__).resolve().parents[2] / "benchmarks" / "world_model_bodies.py"
-    spec = importlib.util.spec_from_file_location("world_model_bodies", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = benchmark_module("world_model_bodies")
     eager = ["world_model.compile=false", "policy.compile=false"]
     cfg = load_config(SuperTrackConfig, runs["a"] / "config.yaml", eager)
     humanoid = Humanoid(cfg.gym.physics)
