@@ -64,23 +64,37 @@ def _metric_rows(values: dict[str, list[float]]) -> list[list[str]]:
 
 
 def metric_tables(labels: list[str], results: list[EvalResult]) -> str:
-    """The overall table then one table per clip: rows are the evaluator's metrics, columns the runs."""
+    """The overall table, with several clips a clip-per-row summary, then one table per clip: rows are the
+    evaluator's metrics, columns the runs."""
     parts = ["#### Mean over clips\n", table(["metric", *labels], _metric_rows(
         {k: [r.overall[k] for r in results] for k in M.METRIC_NAMES}))]  # fmt: skip
+    if len(results[0].clips) > 1:
+        glance = clip_summary_table(labels, results, ("survival", "mpjpe_g", "mpjpe_l"))
+        parts += ["\n#### Per clip at a glance\n", glance]
     for c, clip in enumerate(results[0].clips):
         values = {k: [float(r.per_clip[k][c]) for r in results] for k in M.METRIC_NAMES}
         parts += [f"\n#### Clip `{clip}`\n", table(["metric", *labels], _metric_rows(values))]
     return "\n".join(parts)
 
 
+_SHORT_NAMES = {"survival": "survival", "mpjpe_g": "MPJPE-g (mm)", "mpjpe_l": "MPJPE-l (mm)"}
+
+
+def clip_summary_table(labels: list[str], results: list[EvalResult], keys: Sequence[str]) -> str:
+    """A row per clip, a column per run holding ``keys`` as "a / b / ...", the mean over clips last."""
+    def cell(values: Callable[[str], float]) -> str:
+        return " / ".join(fmt(values(k)) for k in keys)
+
+    rows = [[f"`{clip}`", *[cell(lambda k, r=r, c=c: r.per_clip[k][c]) for r in results]]
+            for c, clip in enumerate(results[0].clips)]  # fmt: skip
+    rows.append(["mean", *[cell(lambda k, r=r: r.overall[k]) for r in results]])
+    names = " / ".join(_SHORT_NAMES.get(k, k) for k in keys)
+    return table(["clip", *[f"{label}: {names}" for label in labels]], rows)
+
+
 def robustness_table(labels: list[str], results: list[EvalResult]) -> str:
     """Per clip and run under pushes: survival and MPJPE-g (full horizon), the mean over clips last."""
-    rows = []
-    for c, clip in enumerate(results[0].clips):
-        rows.append([f"`{clip}`", *[f"{fmt(r.per_clip['survival'][c])} / {fmt(r.per_clip['mpjpe_g'][c])}"
-                                     for r in results]])  # fmt: skip
-    rows.append(["mean", *[f"{fmt(r.overall['survival'])} / {fmt(r.overall['mpjpe_g'])}" for r in results]])
-    return table(["clip", *[f"{label}: survival / MPJPE-g (mm)" for label in labels]], rows)
+    return clip_summary_table(labels, results, ("survival", "mpjpe_g"))
 
 
 def _duration(seconds: float) -> str:
