@@ -156,6 +156,7 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     # What segment k starts from: the kept states and the previous segment's final mean (a backtrack returns here).
     kept_at: dict[int, tuple[np.ndarray, np.ndarray]] = {0: (start[None], np.zeros(nu))}
     rounds_of = np.full(nseg, search.iterations)
+    sigma_of = np.full(nseg, search.sigma_init)
     history: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray]] = []
     features: list[np.ndarray] = []
     actions: list[np.ndarray] = []
@@ -167,7 +168,7 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
             kept, mean = kept_at[k]
             kept_fk = fk(kept[:, 1 : 1 + nq].copy(), kept[:, 1 + nq : 1 + nq + nv].copy())
             kept_feat = feedback_features(humanoid, kept_fk, ref[np.full(len(kept), f0)])
-            mean, sigma = search.mean_carry * mean, np.full(nu, search.sigma_init)
+            mean, sigma = search.mean_carry * mean, np.full(nu, sigma_of[k])
             fresh_state[:, 1 : 1 + nq], fresh_state[:, 1 + nq : 1 + nq + nv] = ref.qpos[f0], ref.qvel[f0]
             fresh_feat = feedback_features(humanoid, fk(ref.qpos[f0 : f0 + 1], ref.qvel[f0 : f0 + 1]), ref[[f0]])
             rounds = []
@@ -196,6 +197,8 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
                 # Even the cheapest sample fell: search the last few segments again, each with more rounds.
                 back = max(0, k - search.backtrack_segments)
                 rounds_of[back : k + 1] = np.minimum(rounds_of[back : k + 1] + search.iterations, search.max_rounds)
+                if search.backtrack_sigma is not None:
+                    sigma_of[back : k + 1] = np.maximum(sigma_of[back : k + 1], search.backtrack_sigma)
                 del history[back:], features[back:], actions[back:]
                 backtracks += 1
                 if progress is not None:

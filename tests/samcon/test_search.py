@@ -145,6 +145,23 @@ def test_a_fallen_segment_is_searched_again_with_more_rounds(walk) -> None:
     np.testing.assert_array_equal(on.targets, off.targets)
 
 
+def test_a_backtrack_widens_the_sampling_of_the_segments_searched_again(walk) -> None:
+    humanoid, library = walk
+    # One round per search, so that the last search of segment 1 draws mean 0 + sigma * z: the same z either way.
+    search = SearchConfig(segment_frames=3, samples=6, iterations=1, keep=2, elite=2, backtrack_segments=1,
+                          max_backtracks=2, max_rounds=1, sigma_init=0.15)  # fmt: skip
+    always = CostConfig(fall_head_error=0.0)
+    runs = [samcon(humanoid, library, 0, 6, s, always, np.random.default_rng(4), regression_samples=6)
+            for s in (search, replace(search, backtrack_sigma=0.5))]  # fmt: skip
+    narrow, wide = (np.array(sorted(map(tuple, r.actions[0]))) for r in runs)
+    assert runs[0].backtracks == runs[1].backtracks == 2
+    np.testing.assert_allclose(wide, np.array(sorted(map(tuple, narrow * (0.5 / 0.15)))), rtol=1e-12)
+    # A width below sigma_init never narrows it.
+    low = samcon(humanoid, library, 0, 6, replace(search, backtrack_sigma=0.01), always, np.random.default_rng(4),
+                 regression_samples=6)  # fmt: skip
+    np.testing.assert_array_equal(low.targets, runs[0].targets)
+
+
 def test_a_search_from_a_later_frame_starts_on_that_reference_state_and_replays(walk) -> None:
     humanoid, library = walk
     search = SearchConfig(segment_frames=3, samples=6, iterations=1, keep=2, elite=2)
