@@ -82,12 +82,9 @@ _SHORT_NAMES = {"survival": "survival", "mpjpe_g": "MPJPE-g (mm)", "mpjpe_l": "M
 
 def clip_summary_table(labels: list[str], results: list[EvalResult], keys: Sequence[str]) -> str:
     """A row per clip, a column per run holding ``keys`` as "a / b / ...", the mean over clips last."""
-    def cell(values: Callable[[str], float]) -> str:
-        return " / ".join(fmt(values(k)) for k in keys)
-
-    rows = [[f"`{clip}`", *[cell(lambda k, r=r, c=c: r.per_clip[k][c]) for r in results]]
+    rows = [[f"`{clip}`", *[" / ".join(fmt(r.per_clip[k][c]) for k in keys) for r in results]]
             for c, clip in enumerate(results[0].clips)]  # fmt: skip
-    rows.append(["mean", *[cell(lambda k, r=r: r.overall[k]) for r in results]])
+    rows.append(["mean", *[" / ".join(fmt(r.overall[k]) for k in keys) for r in results]])
     names = " / ".join(_SHORT_NAMES.get(k, k) for k in keys)
     return table(["clip", *[f"{label}: {names}" for label in labels]], rows)
 
