@@ -80,6 +80,18 @@ class SearchConfig:
             (times ``lookahead_weight``) joins its own: the greedy choice then sees a little of what a state leads
             to. 0: off (the plain SAMCON cost).
         lookahead_weight: Weight of that look-ahead cost.
+        align_cycle: For a loop clip, cut each cycle into ``round(cycle / segment_frames)`` segments of whole frames
+            (5 or 6 on walk's 76-frame cycle), the same in every cycle, instead of ``segment_frames`` from frame 0
+            on, which falls out of step with the cycle: then segment ``k`` of every cycle starts at the same phase,
+            and the feedback policy can be indexed by phase (``feedback.index: phase``). One-shot clips: unchanged.
+        final_scale: The last round of a segment (of two or more) draws with this times the deviation reached: after
+            the wide rounds have found where the offsets lie, samples close to the elite's mean, which carry less of
+            the draws' noise into the pose, compete with them for the kept states. 1: off.
+        sigma_choices: Search each clip once with each of these ``sigma_init`` (rad) and keep the trajectory of the
+            lowest total cost (a fall costs ``cost.fall_penalty`` per frame, so a path that stands wins): a narrow
+            width tracks slow clips closer (walk 45 against 89 mm at 0.1 against 0.3) and loses the dynamic ones
+            (run, jump), which the wide one tracks; the search picks per clip. Minutes and samples are those of all
+            the searches. Empty: ``sigma_init`` alone.
     """
 
     segment_frames: int = 6
@@ -97,6 +109,9 @@ class SearchConfig:
     backtrack_sigma: float | None = None
     lookahead_frames: int = 0
     lookahead_weight: float = 1.0
+    align_cycle: bool = False
+    final_scale: float = 1.0
+    sigma_choices: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if min(self.lookahead_frames, self.lookahead_weight) < 0:
@@ -107,6 +122,10 @@ class SearchConfig:
             raise ValueError("search: segment_frames, samples, iterations, keep and elite must be >= 1")
         if self.keep > self.samples * self.iterations or self.elite > self.samples:
             raise ValueError("search: keep must be <= samples * iterations and elite <= samples")
+        if any(not s > 0 for s in self.sigma_choices):
+            raise ValueError(f"search.sigma_choices must all be > 0, got {list(self.sigma_choices)}")
+        if not 0 < self.final_scale <= 1:
+            raise ValueError(f"search.final_scale must lie in (0, 1], got {self.final_scale}")
         if self.backtrack_sigma is not None and not self.backtrack_sigma > 0:
             raise ValueError(f"search.backtrack_sigma must be > 0 or null, got {self.backtrack_sigma}")
         if not (self.sigma_init > 0 and self.sigma_min >= 0 and 0 < self.sigma_rate <= 1 and 0 <= self.mean_carry <= 1):
@@ -145,7 +164,11 @@ class FeedbackConfig:
     """The per-segment linear feedback policies (Liu et al. 2016).
 
     Attributes:
-        samples: Lowest-cost candidates of each segment regressed on.
+        samples: Lowest-cost candidates of each segment regressed on (``regression: cheapest``).
+        regression: Which candidates the regression takes: ``cheapest``, the ``samples`` lowest-cost ones of the
+            segment (the lectures'), which mixes up which start states were cheap with which offset suits a state;
+            ``per_state``, the lowest-cost candidate of every distinct start state (each kept state, and the
+            reference for ``fresh_share``), the best offset found for that state.
         ridge: Ridge term relative to the mean feature variance (see :func:`samcon.feedback.fit_linear`).
         anchor: ``mean``: b = mean(a) - M mean(s) (the lectures' regression through the samples' means); ``path``:
             b = a* - M s* through the chosen trajectory's offset a* and start features s*, so that on its own states
@@ -159,28 +182,49 @@ class FeedbackConfig:
         fresh_share: Share of the candidates started on the reference state at their segment's start, as an
             evaluation episode starts, so that the regression also sees the states the policy is started from (they
             never become kept states). 0: the plain search.
+        fresh_states: With a velocity noise below, distinct fresh start states per segment (drawn once per segment).
+        fresh_linvel_noise: Standard deviation (m/s) added to the root's linear velocity of each fresh state: the
+            regression then sees deviations like a push or a stumble and the offsets that recover from them.
+        fresh_angvel_noise: The same for the root's angular velocity (rad/s).
         starts: Extra searches for the regression, each from the reference state at another segment-aligned frame of
             the clip's first cycle (drawn with the run's seed), tracking to the same last frame: an evaluation
             episode starts on the reference at some phase, a state the search from frame 0 has drifted away from
             by then, and a regression on that search's samples alone has seen nothing like it. Their samples join
-            the regression of the segments they cover; their time is reported apart from the oracle's.
+            the regression of the segments they cover; their time is reported apart from the oracle's. More starts than
+            the first cycle has segment starts: every one is taken in turn (each again with new draws).
+        start_segments: Segments each of those searches tracks (0: to the same last frame as the search from the
+            clip's start). Short searches from many phases keep their samples and paths near the reference, where an
+            evaluation episode starts, at a fraction of the minutes.
+        index: ``time``: a policy per segment of the tracked range (loop clips past it go back whole cycles);
+            ``phase`` (loop clips, needs ``search.align_cycle``): a policy per segment of the cycle, fitted on the
+            samples of that segment in every cycle of every search and, with ``anchor: nearest``, anchored on all
+            their paths there (a 512-frame search of walk passes each phase 6 or 7 times). One-shot clips: ``time``.
         refine_iterations: Re-runs of SAMCON sampling around the current policies, each followed by a refit.
         refine_sigma: Offset deviation (rad) of those re-runs.
     """
 
     samples: int = 60
+    regression: Literal["cheapest", "per_state"] = "cheapest"
     ridge: float = 0.1
     anchor: Literal["mean", "path", "nearest"] = "path"
     fresh_share: float = 0.0
+    fresh_states: int = 1
+    fresh_linvel_noise: float = 0.0
+    fresh_angvel_noise: float = 0.0
     starts: int = 0
+    start_segments: int = 0
+    index: Literal["time", "phase"] = "time"
     refine_iterations: int = 0
     refine_sigma: float = 0.05
 
     def __post_init__(self) -> None:
-        if self.starts < 0:
-            raise ValueError(f"feedback.starts must be >= 0, got {self.starts}")
+        if self.starts < 0 or self.start_segments < 0:
+            raise ValueError(f"feedback: need starts >= 0 and start_segments >= 0, got {self.starts}, "
+                             f"{self.start_segments}")
         if self.samples < 2 or self.ridge < 0 or self.refine_iterations < 0 or self.refine_sigma <= 0:
             raise ValueError("feedback: need samples >= 2, ridge >= 0, refine_iterations >= 0, refine_sigma > 0")
+        if self.fresh_states < 1 or min(self.fresh_linvel_noise, self.fresh_angvel_noise) < 0:
+            raise ValueError("feedback: need fresh_states >= 1 and fresh velocity noises >= 0")
         if not 0 <= self.fresh_share <= 0.5:
             raise ValueError(f"feedback.fresh_share must lie in [0, 0.5], got {self.fresh_share}")
 
@@ -194,3 +238,8 @@ class SamconConfig:
     search: SearchConfig = field(default_factory=SearchConfig)
     cost: CostConfig = field(default_factory=CostConfig)
     feedback: FeedbackConfig = field(default_factory=FeedbackConfig)
+
+    def __post_init__(self) -> None:
+        if self.feedback.index == "phase" and not self.search.align_cycle:
+            raise ValueError("feedback.index: phase needs search.align_cycle: true (segments at the same phase in "
+                             "every cycle)")

@@ -63,6 +63,7 @@ class Trajectory:
         backtracks: Times the search went back because every kept sample of a segment had fallen.
         feedback_seconds: Wall-clock of the extra searches for the feedback regression (``feedback.starts``).
         feedback_samples: Candidates they simulated.
+        sigma: The ``sigma_init`` of the search (rad).
     """
 
     clip: str
@@ -82,6 +83,7 @@ class Trajectory:
     backtracks: int = 0
     feedback_seconds: float = 0.0
     feedback_samples: int = 0
+    sigma: float = 0.0
 
     @property
     def frames(self) -> int:
@@ -105,6 +107,27 @@ def start_state(library: MotionLibrary, humanoid: Humanoid, clip: int, rsi_lift:
         gym.close()
 
 
+def cycle_frames(library: MotionLibrary, clip: int) -> int:
+    """Control steps of one cycle of a loop clip (the evaluator's rule), 0 for a one-shot clip."""
+    return int(round(library.duration[clip] / library.dt)) if library.loop[clip] else 0
+
+
+def segment_bounds(library: MotionLibrary, clip: int, frames: int, segment_frames: int,
+                   align_cycle: bool = False) -> np.ndarray:  # fmt: skip
+    """First frame of every segment of frames [0, ``frames``) and ``frames`` itself. Shape: (S + 1,).
+
+    Every ``segment_frames`` from 0; with ``align_cycle`` and a loop clip of C frames per cycle, each cycle is cut
+    into m = round(C / segment_frames) segments at ``q C + round(j C / m)``, j < m, the same phases in every cycle.
+    """
+    cycle = cycle_frames(library, clip)
+    if not (align_cycle and cycle):
+        return np.append(np.arange(0, frames, segment_frames), frames)
+    m = max(1, int(round(cycle / segment_frames)))
+    phases = np.rint(np.arange(m) * cycle / m).astype(np.int64)
+    starts = (np.arange(int(np.ceil(frames / cycle)))[:, None] * cycle + phases).ravel()
+    return np.append(starts[starts < frames], frames)
+
+
 def reference_frames(library: MotionLibrary, clip: int, frames: int) -> CharacterState:
     """The reference at frames 0..F, each time computed as the gym does (previous time + dt). Leading shape (F+1,)."""
     dt = library.dt
@@ -120,30 +143,44 @@ def _log_weights(n: int) -> np.ndarray:
 
 def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, search: SearchConfig,
            cost: CostConfig, rng: np.random.Generator, *, threads: int = 1, max_speed: float = 1000.0,
-           guide: Guide | None = None, regression_samples: int = 60, fresh_share: float = 0.0,
-           rsi_lift: bool = False, progress: Progress | None = None, start_frame: int = 0) -> Trajectory:  # fmt: skip
+           guide: Guide | None = None, regression_samples: int = 60, regression: str = "cheapest",
+           fresh_share: float = 0.0, fresh_states: int = 1, fresh_noise: tuple[float, float] = (0.0, 0.0),
+           rsi_lift: bool = False, progress: Progress | None = None, start_frame: int = 0,
+           end_frame: int | None = None) -> Trajectory:  # fmt: skip
     """Tracks the first ``frames`` control steps of clip ``clip`` from its start (see the module docstring).
 
     Args:
         guide: Base offsets from the feedback features (None: 0).
-        regression_samples: Lowest-cost candidates per segment kept for the feedback regression.
+        regression_samples: Lowest-cost candidates per segment kept for the feedback regression (``cheapest``).
+        regression: ``cheapest``: those; ``per_state``: for every distinct start state of the segment (each kept
+            state, and the reference for the fresh candidates), its lowest-cost candidate of all rounds, so that
+            the regression sees the best offset as a function of the start state, not which states were cheapest.
         fresh_share: Share of each round's candidates started on the reference state at the segment's start instead
             of a kept state (as an evaluation episode starts): they enter the regression only, never the kept states
             (the trajectory must be continuous) nor the distribution update.
+        fresh_states: Distinct such states per segment, drawn once per segment: candidate i of the fresh ones
+            starts from state ``i mod fresh_states``.
+        fresh_noise: Standard deviations of the root's linear (m/s) and angular (rad/s) velocity added to those
+            states' reference velocities, so that the regression sees the pushes and stumbles the policy must
+            correct (0, 0: all are the reference state).
         rsi_lift: The gym's start lift (must match the evaluator's).
-        start_frame: Start on the reference state of this frame (a multiple of ``segment_frames``, so that the
-            segments are those of a search from frame 0) and track to frame ``frames``: the feedback regression's
-            samples from states a search from the clip's start never visits.
+        start_frame: Start on the reference state of this frame (a segment start of the grid of ``frames``, see
+            :func:`segment_bounds`, so that the segments are those of a search from frame 0) and track to frame
+            ``end_frame``: the feedback regression's samples from states a search from the clip's start never visits.
+        end_frame: The last frame tracked, a segment start of that grid or ``frames`` (None: ``frames``).
     """
-    if start_frame % search.segment_frames or not 0 <= start_frame < frames:
-        raise ValueError(f"start_frame {start_frame} must be a multiple of segment_frames below {frames}")
+    grid = segment_bounds(library, clip, frames, search.segment_frames, search.align_cycle)
+    end_frame = frames if end_frame is None else end_frame
+    if start_frame not in grid[:-1] or end_frame not in grid or end_frame <= start_frame:
+        raise ValueError(f"start_frame {start_frame} and end_frame {end_frame} must be segment starts of the grid "
+                         f"of {frames} frames (or its end), in order")
     t0 = time.perf_counter()
     n, nu, hinge = search.samples, humanoid.nu, humanoid.hinge_qpos
     # The reference past the last frame too, for the look-ahead (a one-shot clip only to its end).
     beyond = search.lookahead_frames if library.loop[clip] else min(search.lookahead_frames,
                                                                      max(0, library.num_frames[clip] - 1 - frames))
     ref = reference_frames(library, clip, frames + int(beyond))
-    bounds = np.append(np.arange(start_frame, frames, search.segment_frames), frames)
+    bounds = grid[(grid >= start_frame) & (grid <= end_frame)]
     nseg = len(bounds) - 1
     sim = BatchedSim(humanoid, n, threads, max_speed)
     fk = ForwardKinematics(humanoid, threads)
@@ -152,7 +189,9 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     start = start_state(library, humanoid, clip, rsi_lift, t_start)
     nq, nv = humanoid.nq, humanoid.nv
     fresh = np.arange(n) >= n - int(round(fresh_share * n))
-    fresh_state = np.zeros_like(start[None])
+    n_fresh_states = max(1, fresh_states) if fresh_noise[0] > 0 or fresh_noise[1] > 0 else 1
+    fresh_of = np.where(fresh, np.arange(n) % n_fresh_states, 0)
+    fresh_state = np.zeros((n_fresh_states, len(start)))
     # What segment k starts from: the kept states and the previous segment's final mean (a backtrack returns here).
     kept_at: dict[int, tuple[np.ndarray, np.ndarray]] = {0: (start[None], np.zeros(nu))}
     rounds_of = np.full(nseg, search.iterations)
@@ -170,14 +209,22 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
             kept_feat = feedback_features(humanoid, kept_fk, ref[np.full(len(kept), f0)])
             mean, sigma = search.mean_carry * mean, np.full(nu, sigma_of[k])
             fresh_state[:, 1 : 1 + nq], fresh_state[:, 1 + nq : 1 + nq + nv] = ref.qpos[f0], ref.qvel[f0]
-            fresh_feat = feedback_features(humanoid, fk(ref.qpos[f0 : f0 + 1], ref.qvel[f0 : f0 + 1]), ref[[f0]])
+            if n_fresh_states > 1:
+                # The free joint's velocity: linear (world frame) then angular (body frame; the noise is isotropic).
+                fresh_state[:, 1 + nq : 1 + nq + 3] += fresh_noise[0] * rng.standard_normal((n_fresh_states, 3))
+                fresh_state[:, 1 + nq + 3 : 1 + nq + 6] += fresh_noise[1] * rng.standard_normal((n_fresh_states, 3))
+            fresh_qvel = fresh_state[:, 1 + nq : 1 + nq + nv]
+            fresh_feat = feedback_features(humanoid, fk(fresh_state[:, 1 : 1 + nq].copy(), fresh_qvel.copy()),
+                                           ref[np.full(n_fresh_states, f0)])  # fmt: skip
             rounds = []
-            for _ in range(int(rounds_of[k])):
+            for r in range(int(rounds_of[k])):
                 parent = np.arange(n) % len(kept)
                 starts, feat = kept[parent], kept_feat[parent]
-                starts[fresh], feat[fresh] = fresh_state, fresh_feat
+                starts[fresh], feat[fresh] = fresh_state[fresh_of[fresh]], fresh_feat[fresh_of[fresh]]
                 base = guide(k, feat) if guide is not None else np.zeros((n, nu))
-                noise = mean + sigma * rng.standard_normal((n, nu))
+                # The last round samples narrower around the elite's mean (search.final_scale).
+                width = sigma * (search.final_scale if r == rounds_of[k] - 1 and r > 0 else 1.0)
+                noise = mean + width * rng.standard_normal((n, nu))
                 offset = base + noise
                 c, terms, end = _simulate(sim, fk, humanoid, cost, starts, offset, ref, f0, f1, hinge,
                                           search.lookahead_frames, search.lookahead_weight)  # fmt: skip
@@ -205,7 +252,14 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
                     progress(k, nseg, float(c[best[0]]), time.perf_counter() - t0, back)
                 k = back
                 continue
-            good = order[: regression_samples][np.isfinite(c[order[:regression_samples]])]
+            if regression == "per_state":
+                # One per start state: its cheapest candidate (fresh ones: per fresh state).
+                state = np.where(was_fresh, -1 - np.tile(fresh_of, len(rounds)), parent)
+                first = np.unique(state[order], return_index=True)[1]
+                good = order[np.sort(first)]
+                good = good[np.isfinite(c[good])]
+            else:
+                good = order[:regression_samples][np.isfinite(c[order[:regression_samples]])]
             features.append(feat[good])
             actions.append(offset[good])
             history.append((parent[best], offset[best], c[best], end[best], {k_: v[best] for k_, v in terms.items()},
@@ -219,7 +273,7 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
         fk.close()
     traj = _trace_back(library.names[clip], start, history, ref, bounds, hinge, samples, time.perf_counter() - t0,
                        features, actions)  # fmt: skip
-    traj.backtracks = backtracks
+    traj.backtracks, traj.sigma = backtracks, search.sigma_init
     return traj
 
 

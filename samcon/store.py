@@ -4,8 +4,9 @@ Layout (``samcon.h5``): attribute ``format = mimictrack.samcon``, ``version``, `
 group ``clips/<name>`` with datasets ``targets`` (F, nu), ``offsets`` (S, nu), ``bounds`` (S + 1,),
 ``segment_cost`` (S,), ``terms/<term>`` (S,), ``start_state`` (nstate,), ``end_states`` (S, nstate), ``gain``
 (S, nu, D), ``bias`` (S, nu), with ``feedback.anchor: nearest`` also ``anchor_features`` (S, P, D),
-``anchor_offsets`` (S, P, nu) and ``feature_scale`` (D,) (see :class:`samcon.feedback.ClipPlan`), and attributes
-``samples``, ``seconds``. Written to a temporary file and renamed.
+``anchor_offsets`` (S, P, nu) and ``feature_scale`` (D,) (see :class:`samcon.feedback.ClipPlan`), with
+``feedback.index: phase`` also ``plan_bounds`` (the first cycle's segments, which gain, bias and anchors index), and
+attributes ``samples``, ``seconds``. Written to a temporary file and renamed.
 """
 
 from __future__ import annotations
@@ -42,6 +43,8 @@ def save(path: str | Path, control_hz: float, results: list[tuple[Trajectory, Cl
                     g.create_dataset(name, data=getattr(traj, name))
                 for name, values in traj.segment_terms.items():
                     g.create_dataset(f"terms/{name}", data=values)
+                if not np.array_equal(plan.bounds, traj.bounds):
+                    g.create_dataset("plan_bounds", data=plan.bounds)
                 for name in ("gain", "bias", *_ANCHORS):
                     if getattr(plan, name) is not None:
                         g.create_dataset(name, data=getattr(plan, name))
@@ -73,7 +76,8 @@ def load_plans(path: str | Path, control_hz: float) -> tuple[dict[str, ClipPlan]
         plans, info = {}, {}
         for name, g in f["clips"].items():
             anchors = {k: g[k][()] for k in _ANCHORS if k in g}
-            plans[name] = ClipPlan(targets=g["targets"][()], bounds=g["bounds"][()], gain=g["gain"][()],
+            bounds = g["plan_bounds"][()] if "plan_bounds" in g else g["bounds"][()]
+            plans[name] = ClipPlan(targets=g["targets"][()], bounds=bounds, gain=g["gain"][()],
                                    bias=g["bias"][()], **anchors)  # fmt: skip
             info[name] = {"samples": int(g.attrs["samples"]), "seconds": float(g.attrs["seconds"])}
     return plans, info

@@ -37,31 +37,43 @@ from samcon import store
 from samcon.config import FeedbackConfig, SamconConfig
 from samcon.cost import COST_TERMS
 from samcon.feedback import ClipPlan, FeedbackPolicy, fit_linear, open_loop_policy
-from samcon.search import Trajectory, horizon, samcon
+from samcon.search import Trajectory, cycle_frames, horizon, samcon
 
 LEARNER = "samcon"
 
 
-def fit_policies(traj: Trajectory, config: FeedbackConfig,
-                 extra: Sequence[Trajectory] = ()) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """One linear map per segment from its regression samples: gain (S, nu, D), bias (S, nu)."""
-    return anchored(traj, config, *fit_samples(traj, config, extra))
+def fit_policies(traj: Trajectory, config: FeedbackConfig, extra: Sequence[Trajectory] = (),
+                 cycle_segments: int = 0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """One linear map per segment (or per segment of the cycle) from its regression samples: gain (K, nu, D),
+    bias (K, nu)."""
+    return anchored(traj, config, *fit_samples(traj, config, extra, cycle_segments))
 
 
-def fit_samples(traj: Trajectory, config: FeedbackConfig,
-                extra: Sequence[Trajectory] = ()) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """The lectures' regression on every segment's samples: gain (S, nu, D), bias (S, nu).
+def _segment_keys(first: int, count: int, cycle_segments: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where segments ``first``, ... ``first + count - 1`` of the grid go: their policy (the segment itself, or
+    the segment of the cycle with ``cycle_segments`` > 0) and their cycle (0 without). Shapes: (count,) each."""
+    g = first + np.arange(count)
+    return (g, np.zeros_like(g)) if not cycle_segments else (g % cycle_segments, g // cycle_segments)
+
+
+def fit_samples(traj: Trajectory, config: FeedbackConfig, extra: Sequence[Trajectory] = (),
+                cycle_segments: int = 0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The lectures' regression on every segment's samples: gain (K, nu, D), bias (K, nu).
 
     ``extra`` are searches started later in the clip (``feedback.starts``) on the same segment grid: their samples of
-    a segment join ``traj``'s in that segment's regression.
+    a segment join ``traj``'s in that segment's regression. With ``cycle_segments`` (m) > 0 there is one policy per
+    segment of a loop clip's cycle (``feedback.index: phase``): segment g of the grid is policy g mod m, fitted on the
+    samples of that phase in every cycle of every search (K = m); else K is ``traj``'s number of segments.
     """
-    fits = []
-    for k, (s, a) in enumerate(zip(traj.features, traj.actions, strict=True)):
-        for e in extra:
-            j = k - pooled_offset(traj, e)
-            if 0 <= j < len(e.features):
-                s, a = np.concatenate([s, e.features[j]]), np.concatenate([a, e.actions[j]])
-        fits.append(fit_linear(s, a, config.ridge))
+    keys = cycle_segments or len(traj.features)
+    groups: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in range(keys)]
+    for path in (traj, *extra):
+        key_of = _segment_keys(pooled_offset(traj, path), len(path.features), cycle_segments)[0]
+        for key, s, a in zip(key_of, path.features, path.actions, strict=True):
+            if key < keys:
+                groups[key].append((s, a))
+    fits = [fit_linear(np.concatenate([s for s, _ in g]), np.concatenate([a for _, a in g]), config.ridge)
+            for g in groups]  # fmt: skip
     return np.stack([m for m, _ in fits]), np.stack([b for _, b in fits])
 
 
@@ -70,40 +82,61 @@ def pooled_offset(traj: Trajectory, later: Trajectory) -> int:
     return int(np.searchsorted(traj.bounds, later.bounds[0]))
 
 
-def extra_starts(library: MotionLibrary, clip: int, frames: int, segment_frames: int, count: int,
-                 rng: np.random.Generator) -> list[int]:  # fmt: skip
-    """``count`` distinct segment-aligned start frames after 0, drawn within the clip's first cycle (loop clips) or
-    the tracked range (one-shot clips), where the evaluator's episodes start; none left: fewer."""
-    span = int(np.ceil(library.duration[clip] / library.dt - 1e-9)) if library.loop[clip] else frames
-    grid = np.arange(segment_frames, min(span, frames), segment_frames)
-    return sorted(int(f) for f in rng.choice(grid, size=min(count, len(grid)), replace=False))
+def extra_starts(grid: np.ndarray, cycle: int, count: int, rng: np.random.Generator) -> list[int]:
+    """``count`` segment starts after 0 of ``grid`` (see :func:`samcon.search.segment_bounds`) within the clip's
+    first cycle (loop clips, ``cycle`` frames) or the tracked range (one-shot clips, ``cycle`` 0), where the
+    evaluator's episodes start: distinct ones drawn with ``rng``; more than there are: each in turn, then a draw of
+    the rest. Sorted."""
+    span = cycle if cycle else int(grid[-1])
+    choices = grid[(grid > 0) & (grid < min(span, int(grid[-1])))]
+    if count <= len(choices):
+        return sorted(int(f) for f in rng.choice(choices, size=count, replace=False))
+    whole, rest = divmod(count, len(choices))
+    return sorted(int(f) for f in np.concatenate([np.tile(choices, whole), rng.choice(choices, rest, replace=False)]))
 
 
 def anchored(traj: Trajectory, config: FeedbackConfig, gain: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, ...]:
     """With ``feedback.anchor: path`` (or ``nearest``, whose first path is this one), the bias that puts ``traj``'s
-    offsets at its own start features."""
+    offsets at its own start features (per segment of the cycle: its first cycle's)."""
     if config.anchor in ("path", "nearest"):
-        bias = traj.offsets - np.einsum("kad,kd->ka", gain, traj.path_features)
+        k = len(gain)
+        bias = traj.offsets[:k] - np.einsum("kad,kd->ka", gain, traj.path_features[:k])
     return gain, bias
 
 
-def path_anchors(traj: Trajectory, extra: Sequence[Trajectory] = ()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def path_anchors(traj: Trajectory, extra: Sequence[Trajectory] = (),
+                 cycle_segments: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """Every searched path's start features and offsets per segment of ``traj``'s grid (NaN where a path does not
-    cover a segment), path 0 being ``traj``, and the features' spread over all regression samples.
+    cover a segment), path 0 being ``traj``, and the features' spread over all regression samples. With
+    ``cycle_segments`` (m) > 0, per segment of the cycle: column ``p Q + q`` holds path p's segment of that phase
+    in cycle q (Q cycles at most).
 
     Returns:
-        anchor_features (S, P, D), anchor_offsets (S, P, nu), feature_scale (D,).
+        anchor_features (K, P Q, D), anchor_offsets (K, P Q, nu), feature_scale (D,).
     """
     paths = [traj, *extra]
     (nseg, dim), nu = traj.path_features.shape, traj.offsets.shape[1]
-    features, offsets = np.full((nseg, len(paths), dim), np.nan), np.full((nseg, len(paths), nu), np.nan)
+    keys, cycles = (nseg, 1) if not cycle_segments else (cycle_segments, -(-nseg // cycle_segments))
+    features = np.full((keys, len(paths) * cycles, dim), np.nan)
+    offsets = np.full((keys, len(paths) * cycles, nu), np.nan)
     for p, path in enumerate(paths):
         first = pooled_offset(traj, path)
-        if first + len(path.offsets) != nseg or first >= nseg or traj.bounds[first] != path.bounds[0]:
+        if first + len(path.offsets) > nseg or first >= nseg or traj.bounds[first] != path.bounds[0]:
             raise ValueError(f"{traj.clip}: a search from frame {path.bounds[0]} is not on the clip's segment grid")
-        features[first:, p], offsets[first:, p] = path.path_features, path.offsets
+        key, cycle = _segment_keys(first, len(path.offsets), cycle_segments)
+        features[key, p * cycles + cycle], offsets[key, p * cycles + cycle] = path.path_features, path.offsets
     pooled = np.concatenate([s for path in paths for s in path.features])
     return features, offsets, np.maximum(pooled.std(axis=0), 1e-6)
+
+
+def _plan(traj: Trajectory, fb: FeedbackConfig, paths: Sequence[Trajectory], m: int) -> ClipPlan:
+    """The feedback policies fitted on ``traj`` and ``paths``: per segment, or per segment of the cycle (m > 0),
+    whose plan segments are then the first cycle's (the evaluator's policy maps later frames back to it)."""
+    gain, bias = fit_policies(traj, fb, paths, m)
+    plan = ClipPlan(traj.targets, traj.bounds[: m + 1] if m else traj.bounds, gain, bias)
+    if fb.anchor == "nearest":
+        plan.anchor_features, plan.anchor_offsets, plan.feature_scale = path_anchors(traj, paths, m)
+    return plan
 
 
 def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, clip: int, rng: np.random.Generator,
@@ -117,21 +150,45 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
 
     fb = cfg.feedback
     common = dict(threads=cfg.train.threads, max_speed=cfg.gym.max_speed, regression_samples=fb.samples,
-                  fresh_share=fb.fresh_share, rsi_lift=cfg.train.eval.rsi_lift, progress=progress)  # fmt: skip
-    traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng, **common)
+                  regression=fb.regression, fresh_share=fb.fresh_share, fresh_states=fb.fresh_states,
+                  fresh_noise=(fb.fresh_linvel_noise, fb.fresh_angvel_noise), rsi_lift=cfg.train.eval.rsi_lift,
+                  progress=progress)  # fmt: skip
+    choices = cfg.search.sigma_choices
+    search = replace(cfg.search, sigma_init=choices[0]) if choices else cfg.search
+    traj = samcon(humanoid, library, clip, frames, search, cfg.cost, rng, **common)
+    costs = [f"{traj.sigma:g}: {traj.segment_cost.sum():.17g}"]
+    for sigma in choices[1:]:
+        print(f"{name}: searched at sigma {traj.sigma:g}, now at {sigma:g}", file=log, flush=True)
+        other = samcon(humanoid, library, clip, frames, replace(search, sigma_init=sigma), cfg.cost, rng, **common)
+        costs.append(f"{sigma:g}: {other.segment_cost.sum():.17g}")
+        best = other if other.segment_cost.sum() < traj.segment_cost.sum() else traj
+        traj = replace(best, samples=traj.samples + other.samples, seconds=traj.seconds + other.seconds)
+    if choices:
+        print(f"{name}: kept the search at sigma {traj.sigma:g} (total cost by sigma: {', '.join(costs)})", file=log,
+              flush=True)  # fmt: skip
+        search = replace(search, sigma_init=traj.sigma)
+    grid, cycle = traj.bounds, cycle_frames(library, clip)
+    # Per segment of the cycle (feedback.index: phase) where the search covers a whole cycle; else per segment.
+    m = int(np.sum(grid[:-1] < cycle)) if fb.index == "phase" and cycle and grid[-1] >= cycle else 0
     extra = []
-    for first in extra_starts(library, clip, frames, cfg.search.segment_frames, fb.starts, rng):
-        print(f"{name}: a search from frame {first} for the feedback regression", file=log, flush=True)
-        extra.append(samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng, start_frame=first, **common))
+    for first in extra_starts(grid, cycle, fb.starts, rng):
+        i = int(np.searchsorted(grid, first))
+        end = int(grid[min(i + fb.start_segments, len(grid) - 1)]) if fb.start_segments else frames
+        print(f"{name}: a search from frame {first} to {end} for the feedback regression", file=log, flush=True)
+        extra.append(samcon(humanoid, library, clip, frames, search, cfg.cost, rng, start_frame=first,
+                            end_frame=end, **common))  # fmt: skip
     feedback_seconds = sum(e.seconds for e in extra)
     feedback_samples = sum(e.samples for e in extra)
-    gain, bias = fit_policies(traj, cfg.feedback, extra)
-    around = replace(cfg.search, sigma_init=cfg.feedback.refine_sigma, mean_carry=0.0)
-    for _ in range(cfg.feedback.refine_iterations):
-        g, b = gain, bias
+    plan = _plan(traj, fb, extra, m)
+    around = replace(search, sigma_init=fb.refine_sigma, mean_carry=0.0)
+    guided: list[Trajectory] = []
+    for _ in range(fb.refine_iterations):
 
-        def guide(k: int, s: np.ndarray, g: np.ndarray = g, b: np.ndarray = b) -> np.ndarray:
-            return s @ g[k].T + b[k]
+        def guide(k: int, s: np.ndarray, plan: ClipPlan = plan) -> np.ndarray:
+            k = k % m if m else k
+            if plan.anchor_features is None:
+                return s @ plan.gain[k].T + plan.bias[k]
+            return np.stack([plan.offset(k, x) for x in s])
 
         again = samcon(humanoid, library, clip, frames, around, cfg.cost, rng, guide=guide, **common)
         # The open-loop trajectory stays the better of the two searches (the policy is anchored on it); the samples
@@ -139,12 +196,15 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
         best = again if again.segment_cost.sum() < traj.segment_cost.sum() else traj
         traj = replace(best, samples=traj.samples + again.samples, seconds=traj.seconds + again.seconds,
                        backtracks=traj.backtracks + again.backtracks)
-        gain, bias = anchored(traj, cfg.feedback, *fit_samples(again, cfg.feedback, extra))
+        if fb.anchor == "nearest":
+            # Every guided search joins the regression and the anchors (Liu et al. 2016 pool their iterations).
+            guided.append(again)
+            plan = _plan(traj, fb, [*extra, *guided], m)
+        else:
+            gain, bias = anchored(traj, fb, *fit_samples(again, fb, extra, m))
+            plan = ClipPlan(traj.targets, traj.bounds[: m + 1] if m else traj.bounds, gain, bias)
     # The oracle's minutes are the open-loop search's; the feedback's extra searches are counted apart.
     traj.feedback_seconds, traj.feedback_samples = feedback_seconds, feedback_samples
-    plan = ClipPlan(traj.targets, traj.bounds, gain, bias)
-    if cfg.feedback.anchor == "nearest":
-        plan.anchor_features, plan.anchor_offsets, plan.feature_scale = path_anchors(traj, extra)
     return traj, plan
 
 
@@ -165,7 +225,7 @@ def _clip_rows(library: MotionLibrary, results: list[tuple[Trajectory, ClipPlan]
             "frames": traj.frames, "samples": traj.samples, "backtracks": traj.backtracks,
             "minutes": traj.seconds / 60.0, "feedback_search_minutes": traj.feedback_seconds / 60.0,
             "feedback_search_samples": traj.feedback_samples,
-            "minutes_per_motion_second": traj.seconds / 60.0 / seconds_of_motion,
+            "minutes_per_motion_second": traj.seconds / 60.0 / seconds_of_motion, "sigma_init": traj.sigma,
             "open_loop": {k: float(open_loop.per_clip[k][c]) for k in ("mpjpe_g", "mpjpe_l", "survival")},
             "feedback": {k: float(feedback.per_clip[k][c]) for k in ("mpjpe_g", "mpjpe_l", "survival", "success")},
             "cost_total": float(traj.segment_cost.sum()), **diagnose(traj, cfg),

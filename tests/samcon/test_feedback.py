@@ -105,7 +105,74 @@ def test_path_anchors_put_each_search_on_the_segments_it_covers() -> None:
     assert np.isnan(feats[:2, 1]).all() and np.isnan(offs[:2, 1]).all()
     # The spread of the pooled regression features (0, 2, 1, 3) and (0, 4, 2, 6): std sqrt(1.25) and sqrt(5).
     np.testing.assert_allclose(scale, [np.sqrt(1.25), np.sqrt(5.0)])
-    # A search from frame 9 (between segment starts) or one ending early is not on the grid: refused.
-    for bad in ({"bounds": np.array([9, 18])}, {"bounds": np.array([6, 12]), "path_features": np.zeros((1, 2))}):
+    # A search that ends early covers its own segments only; one from frame 9 (between segment starts) or one
+    # running past the grid's end is not on the grid: refused.
+    early = SimpleNamespace(**{**vars(later), "bounds": np.array([6, 12])})
+    feats, _, _ = path_anchors(main, [early])
+    np.testing.assert_array_equal(feats[1, 1], later.path_features[0])
+    assert np.isnan(feats[[0, 2], 1]).all()
+    past = {"bounds": np.array([12, 18, 24]), "path_features": np.zeros((2, 2)), "offsets": np.zeros((2, 4))}
+    for bad in ({"bounds": np.array([9, 18])}, past):
         with pytest.raises(ValueError, match="segment grid"):
             path_anchors(main, [SimpleNamespace(**{**vars(later), **bad})])
+
+
+def _cycle_paths(rng: np.random.Generator, gain: np.ndarray) -> tuple[object, object]:
+    """A search over 2 cycles of 2 segments each (grid 0, 3, 6, 9, 12) and one from frame 6 (segments 2, 3), whose
+    samples follow the known map of their phase."""
+    from types import SimpleNamespace
+
+    def path(first: int, count: int, states: list[np.ndarray]) -> SimpleNamespace:
+        return SimpleNamespace(clip="walk", bounds=np.arange(first, first + count + 1) * 3, features=states,
+                               actions=[s @ gain[(first + k) % 2].T for k, s in enumerate(states)],
+                               path_features=rng.normal(size=(count, 4)),
+                               offsets=rng.normal(size=(count, 3)))  # fmt: skip
+
+    # Phase 0's samples in cycle 0 are 2 distinct states (too few for 4 features); cycle 1's pin its map down.
+    main = path(0, 4, [np.repeat(rng.normal(size=(2, 4)), 5, axis=0), rng.normal(size=(3, 4)),
+                       rng.normal(size=(20, 4)), rng.normal(size=(20, 4))])  # fmt: skip
+    return main, path(2, 2, [rng.normal(size=(20, 4)), rng.normal(size=(20, 4))])
+
+
+def test_per_phase_fit_pools_every_cycle_of_every_search() -> None:
+    from samcon.config import FeedbackConfig
+    from samcon.track import fit_samples
+
+    rng = np.random.default_rng(5)
+    gain = rng.normal(size=(2, 3, 4))  # a known map per phase (2 segments per cycle), 3 actuators, 4 features
+    main, later = _cycle_paths(rng, gain)
+    per_time, _ = fit_samples(main, FeedbackConfig(ridge=1e-6))
+    assert per_time.shape == (4, 3, 4) and np.abs(per_time[0] - gain[0]).max() > 0.1
+    per_phase, bias = fit_samples(main, FeedbackConfig(ridge=0.0), [later], cycle_segments=2)
+    assert per_phase.shape == (2, 3, 4) and bias.shape == (2, 3)
+    np.testing.assert_allclose(per_phase, gain, atol=1e-9)
+    np.testing.assert_allclose(bias, 0.0, atol=1e-9)
+
+
+def test_per_phase_anchors_hold_every_cycle_of_every_path() -> None:
+    from samcon.track import path_anchors
+
+    rng = np.random.default_rng(6)
+    main, later = _cycle_paths(rng, rng.normal(size=(2, 3, 4)))
+    feats, offs, _ = path_anchors(main, [later], cycle_segments=2)
+    # 2 phases; columns p Q + q for path p in cycle q, Q = 2 cycles: main's cycles 0, 1 and the later path's cycle 1.
+    assert feats.shape == (2, 4, 4) and offs.shape == (2, 4, 3)
+    for phase in (0, 1):
+        np.testing.assert_array_equal(feats[phase, 0], main.path_features[phase])
+        np.testing.assert_array_equal(feats[phase, 1], main.path_features[2 + phase])
+        np.testing.assert_array_equal(offs[phase, 3], later.offsets[phase])
+        assert np.isnan(feats[phase, 2]).all() and np.isnan(offs[phase, 2]).all()
+
+
+def test_extra_starts_take_every_segment_start_of_the_first_cycle_in_turn() -> None:
+    from samcon.track import extra_starts
+
+    grid = np.array([0, 6, 12, 18, 23, 29, 35, 41, 47, 53, 58, 64, 70, 76, 82, 88, 94])
+    rng = np.random.default_rng(0)
+    few = extra_starts(grid, 76, 5, rng)
+    assert len(set(few)) == 5 and set(few) <= set(grid[1:13])
+    many = extra_starts(grid, 76, 30, rng)  # 12 starts in the cycle: each twice, and 6 more, distinct
+    counts = np.array([many.count(int(f)) for f in grid[1:13]])
+    assert len(many) == 30 and counts.min() == 2 and (counts == 3).sum() == 6
+    # A one-shot clip: every segment start of the tracked range.
+    assert extra_starts(np.array([0, 6, 12, 15]), 0, 2, rng) == [6, 12]

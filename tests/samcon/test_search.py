@@ -14,7 +14,7 @@ from common.train.evaluate import EvalConfig, evaluate
 from samcon.config import CostConfig, FeedbackConfig, SearchConfig
 from samcon.cost import feedback_features, tracking_cost
 from samcon.feedback import ClipPlan, FeedbackPolicy, open_loop_policy
-from samcon.search import reference_frames, replay, samcon
+from samcon.search import cycle_frames, reference_frames, replay, samcon, segment_bounds
 from samcon.track import fit_policies
 
 
@@ -177,8 +177,30 @@ def test_a_search_from_a_later_frame_starts_on_that_reference_state_and_replays(
     np.testing.assert_array_equal(states[later.bounds[1:] - later.bounds[0] - 1], later.end_states)
     # Its first segment's samples all start on the reference itself: feedback features 0.
     np.testing.assert_allclose(later.features[0], 0.0, atol=1e-9)
-    with pytest.raises(ValueError, match="multiple of segment_frames"):
+    with pytest.raises(ValueError, match="segment starts of the grid"):
         samcon(humanoid, library, 0, 12, search, CostConfig(), np.random.default_rng(6), start_frame=4)
+    # A search may stop at a segment start before the last frame: the same grid, fewer segments.
+    short = samcon(humanoid, library, 0, 12, search, CostConfig(), np.random.default_rng(6), start_frame=3,
+                   end_frame=9)  # fmt: skip
+    np.testing.assert_array_equal(short.bounds, [3, 6, 9])
+    assert short.targets.shape == (6, humanoid.nu)
+    for end in (8, 3):
+        with pytest.raises(ValueError, match="segment starts of the grid"):
+            samcon(humanoid, library, 0, 12, search, CostConfig(), np.random.default_rng(6), start_frame=3,
+                   end_frame=end)  # fmt: skip
+
+
+def test_aligned_segments_cut_every_cycle_at_the_same_phases() -> None:
+    humanoid = Humanoid()
+    library = load_motions(["walk", "kick"], humanoid)
+    assert cycle_frames(library, 0) == 76 and cycle_frames(library, 1) == 0
+    # Walk's cycle of 76 frames in round(76 / 6) = 13 segments at round(76 j / 13): 0, 5.85, 11.7, 17.5, 23.4, ...
+    phases = [0, 6, 12, 18, 23, 29, 35, 41, 47, 53, 58, 64, 70]
+    expected = [*phases, *(76 + p for p in phases), 152, 158, 160]
+    np.testing.assert_array_equal(segment_bounds(library, 0, 160, 6, align_cycle=True), expected)
+    np.testing.assert_array_equal(segment_bounds(library, 0, 20, 6), [0, 6, 12, 18, 20])
+    # A one-shot clip has no cycle: every 6 frames either way.
+    np.testing.assert_array_equal(segment_bounds(library, 1, 20, 6, align_cycle=True), [0, 6, 12, 18, 20])
 
 
 def test_the_look_ahead_cost_is_the_held_offset_played_on(walk) -> None:
@@ -194,3 +216,49 @@ def test_the_look_ahead_cost_is_the_held_offset_played_on(walk) -> None:
     np.testing.assert_allclose(traj.kept_cost[0], np.sort(costs), rtol=1e-12)
     # The kept state is the segment's end, not the look-ahead's.
     np.testing.assert_array_equal(replay(humanoid, traj.start_state, traj.targets)[-1], traj.end_states[0])
+
+
+def test_the_last_round_draws_narrower_around_the_same_mean(walk) -> None:
+    humanoid, library = walk
+    search = SearchConfig(segment_frames=3, samples=6, iterations=2, keep=2, elite=2, sigma_init=0.2)
+    runs = [samcon(humanoid, library, 0, 3, s, CostConfig(), np.random.default_rng(8), regression_samples=12)
+            for s in (search, replace(search, final_scale=0.5))]  # fmt: skip
+    wide, narrow = (set(map(tuple, r.actions[0])) for r in runs)
+    assert len(wide & narrow) == 6  # the first round's draws are the same
+    # The second round's: mean + sigma z against mean + 0.5 sigma z, the same z: half the spread, in the same order.
+    w, n = (np.array(sorted(rows - (wide & narrow))) for rows in (wide, narrow))
+    np.testing.assert_allclose(n - n.mean(axis=0), 0.5 * (w - w.mean(axis=0)), atol=1e-12)
+
+
+def test_per_state_regression_takes_the_cheapest_candidate_of_every_start_state(walk) -> None:
+    humanoid, library = walk
+    search = SearchConfig(segment_frames=3, samples=8, iterations=2, keep=2, elite=2, sigma_init=0.2)
+    every, per_state = (samcon(humanoid, library, 0, 6, search, CostConfig(), np.random.default_rng(9),
+                               regression_samples=16, regression=mode)
+                        for mode in ("cheapest", "per_state"))  # fmt: skip
+    np.testing.assert_array_equal(every.targets, per_state.targets)  # the regression never changes the search
+    # Segment 1 starts from the 2 kept states: one sample each, the first (cheapest) of that state in the full list.
+    states = np.unique(every.features[1], axis=0)
+    assert len(states) == 2 and per_state.features[1].shape == (2, every.features[1].shape[1])
+    for s, a in zip(per_state.features[1], per_state.actions[1], strict=True):
+        first = int(np.flatnonzero((every.features[1] == s).all(axis=1))[0])
+        np.testing.assert_array_equal(a, every.actions[1][first])
+    assert len(per_state.features[0]) == 1  # segment 0 has one start state, the clip's
+
+
+def test_perturbed_fresh_states_differ_in_root_velocity_alone(walk) -> None:
+    humanoid, library = walk
+    search = SearchConfig(segment_frames=3, samples=12, iterations=2, keep=2, elite=2, sigma_init=0.2)
+    traj = samcon(humanoid, library, 0, 3, search, CostConfig(), np.random.default_rng(10), regression="per_state",
+                  fresh_share=0.5, fresh_states=3, fresh_noise=(0.3, 0.5))  # fmt: skip
+    # Segment 0: the clip's start state and 3 perturbed copies of it (the start is the reference: features 0).
+    feats = traj.features[0]
+    assert feats.shape == (4, 16)
+    assert (np.abs(feats) < 1e-9).all(axis=1).sum() == 1
+    velocity = slice(4, 10)  # root_vel_xyz and root_ang_vel_xyz, in FEATURE_NAMES' order
+    np.testing.assert_allclose(np.delete(feats, velocity, axis=1), 0.0, atol=1e-9)
+    assert (np.abs(feats[:, velocity]).max(axis=1) > 1e-3).sum() == 3
+    # Without noise every fresh candidate starts on the reference: one fresh state, the same as the clip's start.
+    plain = samcon(humanoid, library, 0, 3, search, CostConfig(), np.random.default_rng(10), regression="per_state",
+                   fresh_share=0.5, fresh_states=3)  # fmt: skip
+    assert len(plain.features[0]) == 2

@@ -35,7 +35,7 @@ def test_debug_run_writes_its_run_directory(run: Path) -> None:
     # The feedback's extra search from frame 3 (the only other segment start): one segment, counted apart.
     assert walk["feedback_search_samples"] == 1 * 2 * 8 and walk["feedback_search_minutes"] > 0
     log = (run / "progress.log").read_text()
-    assert "walk: a search from frame 3 for the feedback regression" in log
+    assert "walk: a search from frame 3 to 6 for the feedback regression" in log
     assert "walk segment 1/2" in log and "walk segment 2/2" in log
 
 
@@ -89,14 +89,17 @@ def test_a_run_without_its_policy_file_is_refused(run: Path, tmp_path: Path) -> 
         load_run(copy)
 
 
-def test_nearest_anchor_run_stores_every_searched_path(run: Path, tmp_path: Path) -> None:
-    """``feedback.anchor=nearest`` searches and fits exactly as ``path`` (the module's run) and adds the anchors of
-    both searches (from frame 0 and from frame 3) to the file; the report evaluates the policy they make."""
+def test_nearest_anchor_run_stores_every_searched_path(tmp_path: Path) -> None:
+    """``feedback.anchor=nearest`` searches and fits exactly as ``path`` (no refinement, whose guide differs) and
+    adds the anchors of both searches (from frame 0 and from frame 3) to the file; the report evaluates the policy
+    they make."""
     import h5py
 
-    out = tmp_path / "nearest"
-    main(["--config", DEBUG, "--out", str(out), "--set", "feedback.anchor=nearest"])
-    with h5py.File(run / "samcon.h5") as path, h5py.File(out / "samcon.h5") as nearest:
+    plain = ["--set", "feedback.refine_iterations=0"]
+    path_run, out = tmp_path / "path", tmp_path / "nearest"
+    main(["--config", DEBUG, "--out", str(path_run), *plain])
+    main(["--config", DEBUG, "--out", str(out), *plain, "--set", "feedback.anchor=nearest"])
+    with h5py.File(path_run / "samcon.h5") as path, h5py.File(out / "samcon.h5") as nearest:
         for name in ("targets", "gain", "bias"):
             np.testing.assert_array_equal(nearest["clips/walk"][name][()], path["clips/walk"][name][()])
         assert "anchor_features" not in path["clips/walk"]
@@ -108,7 +111,73 @@ def test_nearest_anchor_run_stores_every_searched_path(run: Path, tmp_path: Path
     results = json.loads((out / "results.json").read_text())["clips"]["walk"]
     report = build_report([out], tmp_path / "report", max_frames=6, do_render=False)
     assert report.results[0].per_clip["mpjpe_g"][0] == pytest.approx(results["feedback"]["mpjpe_g"], rel=1e-12)
-    # The same gains on the first path alone are the module's path-anchored run, figure for figure.
-    path_results = json.loads((run / "results.json").read_text())["clips"]["walk"]["feedback"]
+    # The same gains on the first path alone are the path-anchored run, figure for figure.
+    path_results = json.loads((path_run / "results.json").read_text())["clips"]["walk"]["feedback"]
     for key in ("mpjpe_g", "mpjpe_l", "survival"):
         assert results["feedback_path_anchor"][key] == pytest.approx(path_results[key], rel=1e-12)
+
+
+def test_nearest_refinement_adds_each_guided_search_as_an_anchor_path(tmp_path: Path) -> None:
+    import h5py
+
+    out = tmp_path / "refined"
+    main(["--config", DEBUG, "--out", str(out), "--set", "feedback.anchor=nearest", "--set",
+          "feedback.refine_iterations=2"])  # fmt: skip
+    with h5py.File(out / "samcon.h5") as f:
+        # The search from frame 0, the one from frame 3 and the 2 guided searches from frame 0.
+        feats = f["clips/walk/anchor_features"][()]
+        assert feats.shape[:2] == (2, 4)
+        assert not np.isnan(feats[:, [0, 2, 3]]).any() and np.isnan(feats[0, 1]).all()
+
+
+def test_phase_indexed_feedback_run_fits_and_stores_a_policy_per_segment_of_the_cycle(tmp_path: Path) -> None:
+    """Walk's 76-frame cycle in 2 segments of 38 frames (``search.align_cycle``), tracked over 160 frames (grid 0, 38,
+    76, 114, 152, 160): one policy per phase, anchored on every cycle of both searches; the report evaluates it."""
+    import h5py
+
+    out = tmp_path / "phase"
+    sets = ["train.max_frames=160", "train.eval.max_frames=160", "search.segment_frames=38", "search.align_cycle=true",
+            "feedback.index=phase", "feedback.anchor=nearest", "feedback.refine_iterations=0",
+            "feedback.start_segments=1"]  # fmt: skip
+    main(["--config", DEBUG, "--out", str(out), *(a for s in sets for a in ("--set", s))])
+    with h5py.File(out / "samcon.h5") as f:
+        g = f["clips/walk"]
+        np.testing.assert_array_equal(g["bounds"][()], [0, 38, 76, 114, 152, 160])
+        np.testing.assert_array_equal(g["plan_bounds"][()], [0, 38, 76])
+        assert g["gain"].shape[0] == 2 and g["bias"].shape[0] == 2
+        # Columns p Q + q: Q = 3 cycles; the search from the start in cycles 0-2, the later one (frame 38, one
+        # segment) in cycle 0 at phase 1 alone.
+        feats, offs = g["anchor_features"][()], g["anchor_offsets"][()]
+        assert feats.shape[:2] == (2, 6)
+        np.testing.assert_array_equal(offs[:, 0], g["offsets"][:2])
+        np.testing.assert_array_equal(offs[:, 1], g["offsets"][2:4])
+        np.testing.assert_array_equal(offs[0, 2], g["offsets"][4])
+        assert np.isnan(feats[1, 2]).all() and not np.isnan(feats[1, 3]).any() and np.isnan(feats[0, 3]).all()
+    log = (out / "progress.log").read_text()
+    assert "a search from frame 38 to 76 for the feedback regression" in log
+    results = json.loads((out / "results.json").read_text())["clips"]["walk"]
+    report = build_report([out], tmp_path / "report", max_frames=160, do_render=False)
+    assert report.results[0].per_clip["mpjpe_g"][0] == pytest.approx(results["feedback"]["mpjpe_g"], rel=1e-12)
+
+
+def test_phase_index_without_aligned_segments_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--config", DEBUG, "--out", str(tmp_path / "run"), "--set", "feedback.index=phase"])
+    assert "needs search.align_cycle: true" in str(exit_info.value.code)
+    assert not (tmp_path / "run").exists()
+
+
+def test_sigma_choices_keep_the_cheaper_search(tmp_path: Path) -> None:
+    out = tmp_path / "choices"
+    main(["--config", DEBUG, "--out", str(out), "--set", "search.sigma_choices=[0.02, 0.5]", "--set",
+          "feedback.refine_iterations=0", "--set", "feedback.starts=0"])  # fmt: skip
+    log = (out / "progress.log").read_text()
+    line = next(x for x in log.splitlines() if "kept the search at sigma" in x)
+    costs = {float(k): float(v) for k, v in (pair.split(": ") for pair in line.split("by sigma: ")[1][:-1].split(", "))}
+    assert set(costs) == {0.02, 0.5}
+    row = json.loads((out / "results.json").read_text())["clips"]["walk"]
+    kept = min(costs, key=costs.get)
+    assert row["sigma_init"] == kept and f"kept the search at sigma {kept:g}" in line
+    assert row["cost_total"] == pytest.approx(costs[kept], rel=1e-12)
+    # Both searches count: 2 segments x 2 rounds x 8 candidates each.
+    assert row["samples"] == 2 * 2 * 2 * 8
