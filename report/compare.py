@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from common.character.humanoid import Humanoid
@@ -146,6 +147,19 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
     return report
 
 
+def film_order(mpjpe_g: np.ndarray, count: int) -> list[int]:
+    """The clips to film, ``count`` of them spread over the first run's per-clip MPJPE-g (C,): the best, then the
+    worst, then evenly between (best, median, worst for 3), so that a reader sees what the run tracks and where it
+    fails rather than the first clips of the alphabet. Clip indices in that order."""
+    ranked = np.argsort(mpjpe_g, kind="stable")
+    count = min(count, len(ranked))
+    if count <= 0:
+        return []
+    picks = np.unique(np.rint(np.linspace(0, len(ranked) - 1, count)).astype(np.int64))
+    order = [picks[0], *([picks[-1]] if len(picks) > 1 else []), *picks[1:-1]]
+    return [int(ranked[i]) for i in order]
+
+
 def _pictures(report: Report, policies: list[Policy], library: MotionLibrary, humanoid: Humanoid, out: Path,
               strip_clips: int, video_clips: int | None) -> tuple[dict[str, list[tuple[str, Path]]], ...]:  # fmt: skip
     """Filmstrips ({run label: [(clip, png)]}, ``strip_clips`` clips of every run) and MP4 videos ({run label:
@@ -169,14 +183,17 @@ def _pictures(report: Report, policies: list[Policy], library: MotionLibrary, hu
     videos: dict[str, list[tuple[str, Path]]] = {}
     filmed: set[str] = set()
     fps = humanoid.physics.control_hz
+    # Filmstrips: best, worst and between by the first run's MPJPE-g; videos: clip order (their count may be all).
+    chosen = film_order(report.results[0].per_clip["mpjpe_g"], strip_count)
     for run, policy in zip(report.runs, policies, strict=True):
         n_video = 0 if run.learner in filmed else video_count
         filmed.add(run.learner)
         stem = run.label.replace(":", "_").replace("#", "_")
-        for c in range(max(strip_count, n_video)):
+        clips = chosen + [c for c in range(n_video) if c not in chosen]
+        for c in clips:
             name = library.names[c]
             sim, ref = render.record_rollout(policy, library, humanoid, c, report.protocol.max_frames, report.protocol)
-            if c < strip_count:
+            if c in chosen:
                 png = out / f"filmstrip_{stem}_{name}.png"
                 try:
                     render.filmstrip(sim, ref, humanoid, png, backend)
@@ -280,7 +297,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="motions to evaluate on (default: the union of the runs' training motions)")  # fmt: skip
     parser.add_argument("--starts", type=int, default=None, help="start frames per clip (default: first run's)")
     parser.add_argument("--max-frames", type=int, default=None, help="steps per episode (default: first run's)")
-    parser.add_argument("--render-clips", type=int, default=1, help="clips per run drawn as filmstrips")
+    parser.add_argument("--render-clips", type=int, default=1,
+                        help="clips per run drawn as filmstrips: the best, the worst and evenly between by the first "
+                             "run's MPJPE-g")  # fmt: skip
     parser.add_argument("--no-render", action="store_true", help="skip the filmstrips and videos")
     parser.add_argument("--video-clips", type=int, default=None, metavar="N",
                         help="clips per method rendered as MP4 (first run of each learner; default: every clip)")

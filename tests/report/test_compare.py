@@ -161,3 +161,14 @@ def test_video_per_method_and_clip_or_reason(runs: dict[str, Path], tmp_path: Pa
         assert '<a href="video_ppo_ppo_walk.mp4">' in report.files["html"].read_text()
     else:
         assert "Videos were not rendered" in md
+
+
+def test_film_order_spreads_over_the_first_runs_errors() -> None:
+    from report.compare import film_order
+
+    mpjpe = np.array([300.0, 50.0, 900.0, 120.0, 60.0])  # ranked: 1 (50), 4, 3, 0, 2 (900)
+    assert film_order(mpjpe, 1) == [1]
+    assert film_order(mpjpe, 2) == [1, 2]
+    assert film_order(mpjpe, 3) == [1, 2, 3]  # best, worst, median
+    assert film_order(mpjpe, 5) == [1, 2, 4, 3, 0]
+    assert film_order(mpjpe, 9) == [1, 2, 4, 3, 0] and film_order(mpjpe, 0) == []
