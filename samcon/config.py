@@ -91,7 +91,8 @@ class SearchConfig:
             lowest total cost (a fall costs ``cost.fall_penalty`` per frame, so a path that stands wins): a narrow
             width tracks slow clips closer (walk 45 against 89 mm at 0.1 against 0.3) and loses the dynamic ones
             (run, jump), which the wide one tracks; the search picks per clip. Minutes and samples are those of all
-            the searches. Empty: ``sigma_init`` alone.
+            the searches. Each search after the first stops once its cheapest kept path already costs more than
+            the best so far, so the robust width goes first. Empty: ``sigma_init`` alone.
     """
 
     segment_frames: int = 6

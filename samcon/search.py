@@ -34,6 +34,15 @@ from common.sim.sim import BatchedSim
 from samcon.config import CostConfig, SearchConfig
 from samcon.cost import COST_TERMS, feedback_features, tracking_cost
 
+
+class SearchAbandoned(Exception):
+    """A search stopped because every path it could still return already costs more than ``cost_limit``."""
+
+    def __init__(self, segment: int, bound: float, samples: int, seconds: float) -> None:
+        super().__init__(f"abandoned at segment {segment + 1}: its cheapest kept path already costs {bound:.4g}")
+        self.samples, self.seconds = samples, seconds
+
+
 Guide = Callable[[int, np.ndarray], np.ndarray]
 """(segment k, feedback features (n, D)) -> base offsets (n, nu)."""
 Progress = Callable[[int, int, float, float, "int | None"], None]
@@ -146,7 +155,7 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
            guide: Guide | None = None, regression_samples: int = 60, regression: str = "cheapest",
            fresh_share: float = 0.0, fresh_states: int = 1, fresh_noise: tuple[float, float] = (0.0, 0.0),
            rsi_lift: bool = False, progress: Progress | None = None, start_frame: int = 0,
-           end_frame: int | None = None) -> Trajectory:  # fmt: skip
+           end_frame: int | None = None, cost_limit: float = np.inf) -> Trajectory:  # fmt: skip
     """Tracks the first ``frames`` control steps of clip ``clip`` from its start (see the module docstring).
 
     Args:
@@ -168,6 +177,9 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
             :func:`segment_bounds`, so that the segments are those of a search from frame 0) and track to frame
             ``end_frame``: the feedback regression's samples from states a search from the clip's start never visits.
         end_frame: The last frame tracked, a segment start of that grid or ``frames`` (None: ``frames``).
+        cost_limit: Raise :class:`SearchAbandoned` as soon as the cheapest kept sample's cost summed along its
+            parents exceeds this: costs are never negative, so a trajectory through the kept samples can only cost
+            more (a later backtrack could in principle re-search the last segments cheaper; it is not waited for).
     """
     grid = segment_bounds(library, clip, frames, search.segment_frames, search.align_cycle)
     end_frame = frames if end_frame is None else end_frame
@@ -194,6 +206,7 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     fresh_state = np.zeros((n_fresh_states, len(start)))
     # What segment k starts from: the kept states and the previous segment's final mean (a backtrack returns here).
     kept_at: dict[int, tuple[np.ndarray, np.ndarray]] = {0: (start[None], np.zeros(nu))}
+    prefix_at = {0: np.zeros(1)}  # per kept state: the cost of its path so far
     rounds_of = np.full(nseg, search.iterations)
     sigma_of = np.full(nseg, search.sigma_init)
     history: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray]] = []
@@ -265,8 +278,11 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
             history.append((parent[best], offset[best], c[best], end[best], {k_: v[best] for k_, v in terms.items()},
                             kept_feat[parent[best]]))  # fmt: skip
             kept_at[k + 1] = (end[best], mean)
+            prefix_at[k + 1] = prefix_at[k][parent[best]] + c[best]
             if progress is not None:
                 progress(k, nseg, float(c[best[0]]), time.perf_counter() - t0, None)
+            if prefix_at[k + 1].min() > cost_limit:
+                raise SearchAbandoned(k, float(prefix_at[k + 1].min()), samples, time.perf_counter() - t0)
             k += 1
     finally:
         sim.close()

@@ -14,7 +14,7 @@ from common.train.evaluate import EvalConfig, evaluate
 from samcon.config import CostConfig, FeedbackConfig, SearchConfig
 from samcon.cost import feedback_features, tracking_cost
 from samcon.feedback import ClipPlan, FeedbackPolicy, open_loop_policy
-from samcon.search import cycle_frames, reference_frames, replay, samcon, segment_bounds
+from samcon.search import SearchAbandoned, cycle_frames, reference_frames, replay, samcon, segment_bounds
 from samcon.track import fit_policies
 
 
@@ -262,3 +262,18 @@ def test_perturbed_fresh_states_differ_in_root_velocity_alone(walk) -> None:
     plain = samcon(humanoid, library, 0, 3, search, CostConfig(), np.random.default_rng(10), regression="per_state",
                    fresh_share=0.5, fresh_states=3)  # fmt: skip
     assert len(plain.features[0]) == 2
+
+
+def test_a_search_is_abandoned_once_its_cheapest_kept_path_costs_more_than_the_limit(walk) -> None:
+    humanoid, library = walk
+    search = SearchConfig(segment_frames=3, samples=6, iterations=1, keep=2, elite=2, sigma_init=0.2)
+    full = samcon(humanoid, library, 0, 9, search, CostConfig(), np.random.default_rng(11))
+    total = float(full.segment_cost.sum())
+    # Above the total: nothing changes, draw for draw.
+    loose = samcon(humanoid, library, 0, 9, search, CostConfig(), np.random.default_rng(11), cost_limit=total + 1e-9)
+    np.testing.assert_array_equal(loose.targets, full.targets)
+    # Below the cost of the first segment's cheapest sample: stopped there, its samples counted.
+    with pytest.raises(SearchAbandoned, match="abandoned at segment 1") as info:
+        samcon(humanoid, library, 0, 9, search, CostConfig(), np.random.default_rng(11),
+               cost_limit=0.5 * float(full.kept_cost[0][0]))  # fmt: skip
+    assert info.value.samples == 6 and info.value.seconds > 0

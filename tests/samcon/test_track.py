@@ -173,11 +173,13 @@ def test_sigma_choices_keep_the_cheaper_search(tmp_path: Path) -> None:
           "feedback.refine_iterations=0", "--set", "feedback.starts=0"])  # fmt: skip
     log = (out / "progress.log").read_text()
     line = next(x for x in log.splitlines() if "kept the search at sigma" in x)
-    costs = {float(k): float(v) for k, v in (pair.split(": ") for pair in line.split("by sigma: ")[1][:-1].split(", "))}
-    assert set(costs) == {0.02, 0.5}
+    entries = dict(pair.split(": ", 1) for pair in line.split("by sigma: ")[1][:-1].split(", "))
+    assert set(map(float, entries)) == {0.02, 0.5}
     row = json.loads((out / "results.json").read_text())["clips"]["walk"]
-    kept = min(costs, key=costs.get)
+    first = float(entries["0.02"])
+    if entries["0.5"].startswith("abandoned"):  # stopped once dearer than the first: the first is kept
+        kept, total = 0.02, first
+    else:
+        kept, total = min((first, 0.02), (float(entries["0.5"]), 0.5))[::-1]
     assert row["sigma_init"] == kept and f"kept the search at sigma {kept:g}" in line
-    assert row["cost_total"] == pytest.approx(costs[kept], rel=1e-12)
-    # Both searches count: 2 segments x 2 rounds x 8 candidates each.
-    assert row["samples"] == 2 * 2 * 2 * 8
+    assert row["cost_total"] == pytest.approx(total, rel=1e-12)
