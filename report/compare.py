@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from common.character.humanoid import Humanoid
-from common.motion.dataset import load_motions
+from common.motion.dataset import bundled_clip_names, load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
 from common.sim.pushes import PushConfig
@@ -64,10 +64,15 @@ class Report:
     oracles: dict[str, tuple[EvalResult, dict[str, float]]] = field(default_factory=dict)
 
 
-def _union(lists: Sequence[Sequence[str]]) -> list[str]:
+def motion_union(lists: Sequence[Sequence[str]]) -> list[str]:
+    """The runs' motion specs, each once, in order of appearance; with ``all`` among them the bundled short clips'
+    own names are dropped (``all`` holds them, and a clip may be loaded once)."""
     out: list[str] = []
     for items in lists:
         out += [x for x in items if x not in out]
+    if "all" in out:
+        bundled = set(bundled_clip_names())
+        out = [x for x in out if x not in bundled]
     return out
 
 
@@ -103,7 +108,7 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
     if len(set(trained_on.values())) > 1:
         listed = "; ".join(f"{k}: {', '.join(v)}" for k, v in trained_on.items())
         notes.append(f"The runs were TRAINED on different motion sets ({listed}); all are evaluated on the same set.")
-    specs = list(motions) if motions else _union([r.config.get("train", {}).get("motions", []) for r in runs])
+    specs = list(motions) if motions else motion_union([r.config.get("train", {}).get("motions", []) for r in runs])
     physics = runs[0].physics()
     if any(r.physics() != physics for r in runs[1:]):
         notes.append(f"The runs used different physics settings; all are evaluated with {runs[0].label}'s.")

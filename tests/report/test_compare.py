@@ -172,3 +172,12 @@ def test_film_order_spreads_over_the_first_runs_errors() -> None:
     assert film_order(mpjpe, 3) == [1, 2, 3]  # best, worst, median
     assert film_order(mpjpe, 5) == [1, 2, 4, 3, 0]
     assert film_order(mpjpe, 9) == [1, 2, 4, 3, 0] and film_order(mpjpe, 0) == []
+
+
+def test_motion_union_loads_a_clip_once_when_a_run_trained_on_all() -> None:
+    from report.compare import motion_union
+
+    assert motion_union([["walk"], ["run", "walk"]]) == ["walk", "run"]
+    # A run on every clip beside runs on a few: "all" holds walk and run already.
+    assert motion_union([["all"], ["walk", "run"], ["my_take.txt"]]) == ["all", "my_take.txt"]
+    assert motion_union([["walk"], ["all"]]) == ["all"]
