@@ -192,19 +192,25 @@ def per_clip_spread_table(runs: list[Run], results: list[EvalResult]) -> str | N
 def oracle_table(oracles: dict[str, tuple[EvalResult, dict[str, float]]], labels: list[str],
                  results: list[EvalResult]) -> str:  # fmt: skip
     """Per clip: the oracle run that tracked it (the lowest MPJPE-g if several did), its open-loop MPJPE-g / -l from
-    the clip's start, whether it fell and its minutes, then every run's MPJPE-g / -l under the standard protocol."""
+    the clip's start (mm, whole), whether it fell and its minutes, then every run's MPJPE-g / -l under the standard
+    protocol; an oracle run on a clip it did not track says so (its policy there only plays the reference)."""
     header = ["clip", "oracle run", "open loop MPJPE-g / -l (mm)", "fell", "minutes"]
     header += [f"{x} MPJPE-g / -l (mm)" for x in labels]
+
+    def mm(res: EvalResult, c: int) -> str:
+        return " / ".join("nan" if not np.isfinite(v) else f"{v:.0f}"
+                          for v in (res.per_clip["mpjpe_g"][c], res.per_clip["mpjpe_l"][c]))  # fmt: skip
+
     rows = []
     for c, clip in enumerate(results[0].clips):
         tracked = [(res.per_clip["mpjpe_g"][c], label, res, minutes[clip])
                    for label, (res, minutes) in oracles.items() if clip in minutes]  # fmt: skip
         if tracked:
             _, label, res, minutes = min(tracked, key=lambda t: t[0])
-            row = [clip, label, f"{fmt(res.per_clip['mpjpe_g'][c])} / {fmt(res.per_clip['mpjpe_l'][c])}",
-                   "no" if res.per_clip["survival"][c] == 1.0 else "yes", fmt(minutes)]  # fmt: skip
+            row = [clip, label, mm(res, c), "no" if res.per_clip["survival"][c] == 1.0 else "yes", f"{minutes:.1f}"]
         else:
             row = [clip, "not tracked", "", "", ""]
-        row += [f"{fmt(r.per_clip['mpjpe_g'][c])} / {fmt(r.per_clip['mpjpe_l'][c])}" for r in results]
+        row += ["not tracked" if label in oracles and clip not in oracles[label][1] else mm(r, c)
+                for label, r in zip(labels, results, strict=True)]  # fmt: skip
         rows.append(row)
     return table(header, rows)

@@ -36,3 +36,15 @@ def test_metric_tables_put_the_summary_only_where_there_are_several_clips() -> N
                           overall={k: 1.0 for k in M.METRIC_NAMES})  # fmt: skip
     assert "#### Per clip at a glance" in metric_tables(["a"], [two])
     assert "#### Per clip at a glance" not in metric_tables(["a"], [one])
+
+
+def test_oracle_table_takes_each_clips_oracle_and_marks_clips_a_samcon_run_did_not_track() -> None:
+    from report.tables import oracle_table
+
+    learner = _result([1.0, 0.0], [61.4, 2873.6], [18.1, 164.1])
+    on_walk = _result([0.25, 0.0], [2481.4, 8959.5], [337.0, 462.1])  # a SAMCON run that tracked walk only
+    open_loop = _result([1.0, 1.0], [44.69, 3000.0], [30.47, 200.0])
+    md = oracle_table({"samcon:w": (open_loop, {"walk": 5.0083})}, ["st", "samcon:w"], [learner, on_walk])
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in md.splitlines()[2:]]
+    assert rows[0] == ["walk", "samcon:w", "45 / 30", "no", "5.0", "61 / 18", "2481 / 337"]
+    assert rows[1] == ["run", "not tracked", "", "", "", "2874 / 164", "not tracked"]
