@@ -22,6 +22,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -152,8 +153,9 @@ def _log_weights(n: int) -> np.ndarray:
 
 def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, search: SearchConfig,
            cost: CostConfig, rng: np.random.Generator, *, threads: int = 1, max_speed: float = 1000.0,
-           guide: Guide | None = None, regression_samples: int = 60, regression: str = "cheapest",
-           fresh_share: float = 0.0, fresh_states: int = 1, fresh_noise: tuple[float, float] = (0.0, 0.0),
+           guide: Guide | None = None, regression_samples: int = 60,
+           regression: Literal["cheapest", "per_state"] = "cheapest", fresh_share: float = 0.0,
+           fresh_states: int = 1, fresh_noise: tuple[float, float] = (0.0, 0.0),
            rsi_lift: bool = False, progress: Progress | None = None, start_frame: int = 0,
            end_frame: int | None = None, cost_limit: float = np.inf) -> Trajectory:  # fmt: skip
     """Tracks the first ``frames`` control steps of clip ``clip`` from its start (see the module docstring).

@@ -70,8 +70,7 @@ def fit_samples(traj: Trajectory, config: FeedbackConfig, extra: Sequence[Trajec
     for path in (traj, *extra):
         key_of = _segment_keys(pooled_offset(traj, path), len(path.features), cycle_segments)[0]
         for key, s, a in zip(key_of, path.features, path.actions, strict=True):
-            if key < keys:
-                groups[key].append((s, a))
+            groups[key].append((s, a))
     fits = [fit_linear(np.concatenate([s for s, _ in g]), np.concatenate([a for _, a in g]), config.ridge)
             for g in groups]  # fmt: skip
     return np.stack([m for m, _ in fits]), np.stack([b for _, b in fits])
@@ -129,11 +128,15 @@ def path_anchors(traj: Trajectory, extra: Sequence[Trajectory] = (),
     return features, offsets, np.maximum(pooled.std(axis=0), 1e-6)
 
 
+def _plan_bounds(traj: Trajectory, m: int) -> np.ndarray:
+    """The segments a plan's policies index: the first cycle's with m > 0 policies per cycle, else all of them."""
+    return traj.bounds[: m + 1] if m else traj.bounds
+
+
 def _plan(traj: Trajectory, fb: FeedbackConfig, paths: Sequence[Trajectory], m: int) -> ClipPlan:
     """The feedback policies fitted on ``traj`` and ``paths``: per segment, or per segment of the cycle (m > 0),
     whose plan segments are then the first cycle's (the evaluator's policy maps later frames back to it)."""
-    gain, bias = fit_policies(traj, fb, paths, m)
-    plan = ClipPlan(traj.targets, traj.bounds[: m + 1] if m else traj.bounds, gain, bias)
+    plan = ClipPlan(traj.targets, _plan_bounds(traj, m), *fit_policies(traj, fb, paths, m))
     if fb.anchor == "nearest":
         plan.anchor_features, plan.anchor_offsets, plan.feature_scale = path_anchors(traj, paths, m)
     return plan
@@ -208,8 +211,7 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
             guided.append(again)
             plan = _plan(traj, fb, [*extra, *guided], m)
         else:
-            gain, bias = anchored(traj, fb, *fit_samples(again, fb, extra, m))
-            plan = ClipPlan(traj.targets, traj.bounds[: m + 1] if m else traj.bounds, gain, bias)
+            plan = ClipPlan(traj.targets, _plan_bounds(traj, m), *anchored(traj, fb, *fit_samples(again, fb, extra, m)))
     # The oracle's minutes are the open-loop search's; the feedback's extra searches are counted apart.
     traj.feedback_seconds, traj.feedback_samples = feedback_seconds, feedback_samples
     return traj, plan
