@@ -43,6 +43,7 @@ from common.maths.rotations import (
 from common.motion.motion import Clip
 
 SEAM_BLEND = 0.5  # s: a wrap clip's end takes its first frame's clearance above the floor over this long
+FLIGHT_CLEARANCE = 0.03  # m: a keyframe whose lowest point is higher above the floor than this is in flight
 
 
 @dataclass(frozen=True)
@@ -71,7 +72,9 @@ def _bend_loop(clip: Clip, humanoid: Humanoid) -> tuple[np.ndarray, np.ndarray, 
     bent clip keeps the recorded clip's clearance above the floor, except for the seam's own clearance mismatch
     h(D) - h(0), which is taken out over the last :data:`SEAM_BLEND` seconds (w a smoothstep from 0 to 1 there):
     over the whole cycle it would lift or sink every frame for what is often a glitch of the last few (crawl's last
-    keyframes are 8.8 cm in the floor). c is 0 at both ends, so the loop stays closed.
+    keyframes are 8.8 cm in the floor). c at the ends closes the loop. At keyframes in flight (recorded h above
+    :data:`FLIGHT_CLEARANCE`) c is interpolated linearly in time between its values at the neighbouring keyframes
+    that touch the floor (or the ends), which leaves the flight's vertical acceleration as recorded.
     """
     s = (clip.times / clip.duration)[:, None]
     root_pos = clip.root_pos.copy()  # its height is set by the clearance correction below
@@ -86,7 +89,14 @@ def _bend_loop(clip: Clip, humanoid: Humanoid) -> tuple[np.ndarray, np.ndarray, 
     blend = min(SEAM_BLEND, clip.duration)
     u = np.clip((clip.times - (clip.duration - blend)) / blend, 0.0, 1.0)
     w = u * u * (3.0 - 2.0 * u)
-    root_pos[:, 2] += (recorded - bent) - w * (recorded[-1] - recorded[0])
+    shift = (recorded - bent) - w * (recorded[-1] - recorded[0])
+    # In flight the clearance is a foot in the air, not a contact to keep: there the shift runs linearly in time
+    # between the keyframes that touch (and the ends, which close the loop), so that the root's flight stays the
+    # recorded parabola (a shift linear in time adds no acceleration). Shifting it to each flight keyframe's clearance
+    # moved run's root by up to 13 cm in the air, an acceleration no floor contact can give.
+    touch = recorded <= FLIGHT_CLEARANCE
+    touch[[0, -1]] = True
+    root_pos[:, 2] += np.interp(clip.times, clip.times[touch], shift[touch])
     return root_pos, root_rot, joint_rot
 
 
@@ -253,6 +263,25 @@ class MotionLibrary:
         self.frames = CharacterState(**{f: np.concatenate([getattr(c.frames, f) for c in clips]) for f in FRAME_FIELDS})
         # The last time a one-shot clip can be queried on its grid; wrap clips never end.
         self.end_time = np.where(self.loop, np.inf, (counts - 1) * control_dt)
+        self.cycle_wind = np.stack([self._cycle_wind(c) for c in range(len(clips))])
+
+    def _cycle_wind(self, c: int) -> np.ndarray:
+        """What a wrap clip's hinge angles gain per cycle: whole turns (nq,).
+
+        The hinge angles of a wrap clip are its joint rotations as continuous Euler angles over the cycle, which may
+        end a whole turn away from where they began (a shoulder's x and z angles go once round in dance_a, crawl,
+        cartwheel and sideflip): the same rotation, but cycle c + 1 starting again from the first frame's angles made
+        the PD targets jump by 2 pi at every loop seam, and the character's joint was driven a whole turn back. Cycle
+        c's angles are the first cycle's plus c times these turns, so that angles and targets run on continuously.
+        Only exact whole turns count (a seam that lands on the other Euler solution of a joint, which no shift mends,
+        is left as it is)."""
+        if not self.loop[c]:
+            return np.zeros(self.frames.qpos.shape[1])
+        q = self.frames.qpos[self.start[c] : self.start[c] + self.num_frames[c]]
+        change = q[-1] - q[0]
+        turns = 2.0 * np.pi * np.rint(change / (2.0 * np.pi))
+        turns[:7] = 0.0  # the free joint: the cycle transform moves the root
+        return np.where(np.abs(change - turns) < 1e-6, turns, 0.0)
 
     @classmethod
     def from_clips(cls, clips: list[Clip], humanoid: Humanoid) -> MotionLibrary:
@@ -317,6 +346,7 @@ class MotionLibrary:
         if np.any(cycles > 0):
             yaw_c, shift_c = cycle_power(self.cycle_yaw[clip_ids], self.cycle_shift[clip_ids], cycles)
             _move_yaw(state, yaw_c, shift_c)
+            state.qpos += cycles[:, None] * self.cycle_wind[clip_ids]
         return state
 
     def _interpolate(self, state: CharacterState, clip_ids: np.ndarray, i0: np.ndarray, w: np.ndarray,

@@ -119,6 +119,28 @@ def test_wrap_clip_continuous_across_loop(walk_lib: MotionLibrary) -> None:
     assert start.qpos[1, 0] - start.qpos[0, 0] == pytest.approx(3 * step, rel=0.05)
 
 
+def test_hinge_angles_run_on_across_a_seam_where_the_cycle_winds_a_whole_turn(humanoid: Humanoid) -> None:
+    """dance_a's shoulders' x and z Euler angles end the cycle 2 pi from where they began (the same rotation): the
+    hinge angles, which the gym uses as PD targets, must not jump back by 2 pi at a seam, and the angles of later
+    cycles must still pose the character where the library says its bodies are (MuJoCo's own kinematics)."""
+    from common.motion.library import body_states
+
+    lib = MotionLibrary.from_clips(resolve_clips(["dance_a", "walk"]), humanoid)
+    dur = lib.duration[0]
+    wind = lib.cycle_wind[0, humanoid.hinge_qpos]
+    names = [humanoid.model.actuator(a).name for a in range(humanoid.nu)]
+    wound = sorted(names[a] for a in np.flatnonzero(wind))
+    assert wound == ["left_shoulder_x", "left_shoulder_z", "right_shoulder_x", "right_shoulder_z"]
+    np.testing.assert_allclose(wind[np.flatnonzero(wind)], -2 * np.pi, atol=1e-12)
+    assert not lib.cycle_wind[1].any()  # walk closes its cycle without a turn
+    for cycle in (1, 2):
+        t = cycle * dur + np.array([-2 * DT, -DT, 0.0, DT])
+        state = lib.query(np.zeros(4, dtype=np.int64), t)
+        assert np.abs(np.diff(state.qpos[:, humanoid.hinge_qpos], axis=0)).max() < 0.5
+        posed = body_states(humanoid, state.qpos, state.qvel)
+        np.testing.assert_allclose(posed.body_pos, state.body_pos, atol=1e-6)
+
+
 def test_loop_bend_keeps_the_recorded_ground_clearance(humanoid: Humanoid) -> None:
     # The jump's first and last keyframes differ by 15-20 deg at the hips and knees. Bending them closed moves the
     # feet; without the root-height correction the looped jump had its feet 7.9 cm in the floor after the landing,
@@ -134,15 +156,46 @@ def test_loop_bend_keeps_the_recorded_ground_clearance(humanoid: Humanoid) -> No
     assert low_loop.min() > -0.03
     # Frame by frame: the recorded clearance, minus the seam's own clearance mismatch taken out by a smoothstep over the
     # last 0.5 s (the wrap grid is time-scaled by < 1 %, so the frames are compared within 1.5 cm, not exactly).
+    # On the frames that touch the floor (in flight the root follows its recorded parabola instead: next test).
     n = min(len(low_loop), len(low_rec))
     u = np.clip((np.arange(n) * DT - (looped.duration[0] - 0.5)) / 0.5, 0.0, 1.0)
     expected = low_rec[:n] - u * u * (3 - 2 * u) * (low_rec[-1] - low_rec[0])
-    assert np.abs(low_loop[:n] - expected).max() < 0.015
+    touching = low_rec[:n] < 0.02
+    assert touching.sum() > n / 2
+    assert np.abs(low_loop[:n] - expected)[touching].max() < 0.015
     # The correction is zero at both ends: the loop stays closed.
     dur = looped.duration[0]
     before = looped.query(np.array([0]), np.array([dur - 1e-7]))
     after = looped.query(np.array([0]), np.array([dur + 1e-7]))
     assert np.abs(before.body_pos - after.body_pos).max() < 1e-4
+
+
+def test_loop_bend_keeps_the_recorded_flight_parabola(humanoid: Humanoid) -> None:
+    """run: in flight (the recorded lowest point more than 3 cm above the floor) the root-height shift of the bend is
+    linear in time, so the root's vertical acceleration there is the recorded one (a shift that followed each flight
+    keyframe's foot moved the root by up to 13 cm in the air); on the keyframes that touch, it keeps the clearance."""
+    from common.motion.library import FLIGHT_CLEARANCE, _bend_loop, _lowest_point
+
+    clip = resolve_clips(["run"])[0]
+    root_pos, root_rot, joint_rot = _bend_loop(clip, humanoid)
+    shift = root_pos[:, 2] - clip.root_pos[:, 2]
+    recorded = _lowest_point(humanoid, clip.root_pos, clip.root_rot, clip.joint_rot)
+    bent = _lowest_point(humanoid, root_pos, root_rot, joint_rot)
+    flight = recorded > FLIGHT_CLEARANCE
+    assert 0.2 < flight.mean() < 0.5  # run's keyframes: about a third in the air
+    t = clip.times
+    # Second differences of the shift at keyframes whose neighbours are in flight too: zero (linear in time).
+    inner = np.flatnonzero(flight[1:-1] & flight[:-2] & flight[2:]) + 1
+    assert len(inner) >= 2
+    slope = np.diff(shift) / np.diff(t)
+    np.testing.assert_allclose(slope[inner], slope[inner - 1], atol=1e-9)
+    # The bend itself is not zero there (else the check would be empty): the old per-keyframe rule would have moved
+    # the root by the change of the bent pose's clearance.
+    assert np.abs((recorded - bent)[flight] - (recorded - bent)[flight].mean()).max() > 0.01
+    # Touching keyframes before the seam's blend (the last 0.5 s) keep the recorded clearance exactly.
+    touch = ~flight & (t < clip.duration - 0.5)
+    assert touch.sum() >= 3
+    np.testing.assert_allclose(bent[touch], recorded[touch], atol=1e-9)
 
 
 def test_one_shot_clip_holds_last_frame(lib3: MotionLibrary) -> None:
