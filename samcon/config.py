@@ -230,6 +230,64 @@ class FeedbackConfig:
             raise ValueError(f"feedback.fresh_share must lie in [0, 0.5], got {self.fresh_share}")
 
 
+_FEATURES = ("root_tilt_x", "root_tilt_y", "root_vel_x", "root_vel_y", "root_ang_vel_x", "root_ang_vel_y")
+_ACTUATORS = ("right_hip_x", "right_hip_y", "left_hip_x", "left_hip_y", "right_ankle_x", "right_ankle_y",
+              "left_ankle_x", "left_ankle_y", "chest_x", "chest_y")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class OptimiseConfig:
+    """Closed-loop optimisation of reduced feedback gains with CMA-ES (:mod:`samcon.optimise`; the gains of Liu et al.
+    2012 and the reduced-order policies of Ding et al. 2015 are tuned this way): on top of the regressed policy, each
+    segment adds ``R_g (s - s*)`` with s the deviation from the reference (:data:`samcon.cost.FEATURE_NAMES`), s*
+    that of the nearest anchor path (``feedback.anchor: nearest``; else 0) and R_g nonzero only from ``features`` to
+    ``actuators``; CMA-ES searches those entries by running the policy from random starts of the clip in the gym,
+    scored by the frames it stays up and its body position error.
+
+    Attributes:
+        generations: CMA-ES generations per clip (0: off).
+        population: Candidates per generation.
+        starts: Episodes per candidate, from reference states at random frames of the clip (one in each of
+            ``starts`` equal stretches), drawn anew every generation with the run's seed, the same for every
+            candidate of a generation; not the evaluator's fixed starts.
+        frames: Steps per episode (one-shot clips: at most to their last frame).
+        sigma: CMA-ES's initial step, in rad of offset per unit of a scaled feature.
+        features: Feedback features the gains read, each scaled by its spread under the regressed policy (as a
+            standard deviation from the median absolute deviation, at least ``min_spread``).
+        actuators: Actuators the gains act on.
+        groups: Gain matrices per clip, over consecutive segments of the plan split evenly (1: one for all).
+        mirror: The second half of the groups is the left-right mirror image of the first (a walk's second step
+            mirrors its first), halving the parameters; needs an even ``groups`` and both sides of every listed
+            feature and actuator.
+        error_scale: m of mean body position error that costs as much as a fallen frame (errors above it cost 1).
+        max_correction: The largest correction per actuator (rad); beyond it the correction is clipped.
+        min_spread: The smallest spread a feature is scaled by (its units: m, rad, m/s, rad/s).
+    """
+
+    generations: int = 0
+    population: int = 16
+    starts: int = 8
+    frames: int = 300
+    sigma: float = 0.2
+    features: list[str] = field(default_factory=lambda: list(_FEATURES))
+    actuators: list[str] = field(default_factory=lambda: list(_ACTUATORS))
+    groups: int = 1
+    mirror: bool = False
+    error_scale: float = 0.5
+    max_correction: float = 0.5
+    min_spread: float = 0.01
+
+    def __post_init__(self) -> None:
+        if self.generations < 0 or self.population < 2 or self.starts < 1 or self.frames < 1 or self.groups < 1:
+            raise ValueError("optimise: need generations >= 0, population >= 2, starts >= 1, frames >= 1, groups >= 1")
+        if min(self.sigma, self.error_scale, self.max_correction, self.min_spread) <= 0:
+            raise ValueError("optimise: need sigma, error_scale, max_correction and min_spread > 0")
+        if not self.features or not self.actuators:
+            raise ValueError("optimise: features and actuators must not be empty")
+        if self.mirror and self.groups % 2:
+            raise ValueError(f"optimise.mirror needs an even optimise.groups, got {self.groups}")
+
+
 @dataclass(frozen=True)
 class SamconConfig:
     """Everything ``track-samcon`` reads."""
@@ -239,6 +297,7 @@ class SamconConfig:
     search: SearchConfig = field(default_factory=SearchConfig)
     cost: CostConfig = field(default_factory=CostConfig)
     feedback: FeedbackConfig = field(default_factory=FeedbackConfig)
+    optimise: OptimiseConfig = field(default_factory=OptimiseConfig)
 
     def __post_init__(self) -> None:
         if self.feedback.index == "phase" and not self.search.align_cycle:

@@ -58,6 +58,10 @@ class ClipPlan:
             where it does not. Shape: (S, P, D). None: the policy is ``M_k s + b_k``.
         anchor_offsets: Those paths' chosen offsets a*_p. Shape: (S, P, nu).
         feature_scale: Per feature, the spread the distance to an anchor is measured in. Shape: (D,).
+        ref_gain: Gains optimised in closed loop (:mod:`samcon.optimise`), added to the offset of every segment:
+            ``R_g (s - s*_p)`` with anchors (zero on a searched path's own states), else ``R_g s``, g the segment's
+            group (G groups split the segments evenly). Shape: (G, nu, D). None: none.
+        ref_limit: The largest correction per actuator (rad); beyond it it is clipped.
     """
 
     targets: np.ndarray
@@ -67,17 +71,34 @@ class ClipPlan:
     anchor_features: np.ndarray | None = None
     anchor_offsets: np.ndarray | None = None
     feature_scale: np.ndarray | None = None
+    ref_gain: np.ndarray | None = None
+    ref_limit: float = np.inf
 
-    def offset(self, k: int, s: np.ndarray) -> np.ndarray:
-        """The offset of segment ``k`` for features ``s`` (D,): ``M_k s + b_k``, or with anchors
+    def group(self, k: int, groups: int) -> int:
+        """The group of segment ``k`` when the plan's segments are split evenly into ``groups``."""
+        return k * groups // (len(self.bounds) - 1)
+
+    def regressed(self, k: int, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The regressed part of segment ``k``'s offset for features ``s`` (D,): ``M_k s + b_k``, or with anchors
         ``a*_p + M_k (s - s*_p)`` through the path p whose start features are nearest to ``s`` (scaled by
-        ``feature_scale``): on any searched path's own states the policy replays that path. Shape: (nu,)."""
+        ``feature_scale``): on any searched path's own states the policy replays that path. Also the deviation the
+        closed-loop gains read: ``s - s*_p`` from that path's state with anchors, else ``s`` (from the reference).
+        Shapes: (nu,), (D,)."""
         if self.anchor_features is None:
-            return self.gain[k] @ s + self.bias[k]
+            return self.gain[k] @ s + self.bias[k], s
         have = ~np.isnan(self.anchor_features[k, :, 0])
         diff = s - self.anchor_features[k, have]
         p = int(np.argmin(np.square(diff / self.feature_scale).sum(axis=1)))
-        return self.anchor_offsets[k, have][p] + self.gain[k] @ diff[p]
+        return self.anchor_offsets[k, have][p] + self.gain[k] @ diff[p], diff[p]
+
+    def offset(self, k: int, s: np.ndarray) -> np.ndarray:
+        """The offset of segment ``k`` for features ``s`` (D,): :meth:`regressed` plus, with ``ref_gain``, the
+        closed-loop gains' ``R_g`` times the deviation it gives (clipped to ``ref_limit``). Shape: (nu,)."""
+        out, diff = self.regressed(k, s)
+        if self.ref_gain is not None:
+            out = out + np.clip(self.ref_gain[self.group(k, len(self.ref_gain))] @ diff, -self.ref_limit,
+                                self.ref_limit)  # fmt: skip
+        return out
 
 
 def _frame_index(result: StepResult, dt: float) -> np.ndarray:
@@ -141,6 +162,10 @@ class FeedbackPolicy:
             s = feedback_features(self.humanoid, result.sim[ids], result.ref[ids])
             for j, i in enumerate(ids):
                 plan = self.plans.get(self.library.names[result.clip[i]])
-                self._held[i] = 0.0 if plan is None else plan.offset(seg[i], s[j])
+                self._held[i] = 0.0 if plan is None else self._offset(i, plan, int(seg[i]), s[j])
         self._episode, self._segment = result.episode_id.copy(), seg
         return result.ref_next.qpos[:, self.humanoid.hinge_qpos] + self._held
+
+    def _offset(self, i: int, plan: ClipPlan, k: int, s: np.ndarray) -> np.ndarray:
+        """The offset character ``i`` holds over segment ``k`` of ``plan`` from features ``s`` (D,)."""
+        return plan.offset(k, s)

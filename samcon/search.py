@@ -22,7 +22,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -74,6 +74,8 @@ class Trajectory:
         feedback_seconds: Wall-clock of the extra searches for the feedback regression (``feedback.starts``).
         feedback_samples: Candidates they simulated.
         sigma: The ``sigma_init`` of the search (rad).
+        optimise: With ``optimise.generations`` > 0, the closed-loop gain search's summary and learning curve
+            (:func:`samcon.optimise.optimise_gains`) and its ``seconds``.
     """
 
     clip: str
@@ -94,6 +96,7 @@ class Trajectory:
     feedback_seconds: float = 0.0
     feedback_samples: int = 0
     sigma: float = 0.0
+    optimise: dict[str, Any] | None = None
 
     @property
     def frames(self) -> int:

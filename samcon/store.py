@@ -4,7 +4,9 @@ Layout (``samcon.h5``): attribute ``format = mimictrack.samcon``, ``version``, `
 group ``clips/<name>`` with datasets ``targets`` (F, nu), ``offsets`` (S, nu), ``bounds`` (S + 1,),
 ``segment_cost`` (S,), ``terms/<term>`` (S,), ``start_state`` (nstate,), ``end_states`` (S, nstate), ``gain``
 (S, nu, D), ``bias`` (S, nu), with ``feedback.anchor: nearest`` also ``anchor_features`` (S, P, D),
-``anchor_offsets`` (S, P, nu) and ``feature_scale`` (D,) (see :class:`samcon.feedback.ClipPlan`), with
+``anchor_offsets`` (S, P, nu) and ``feature_scale`` (D,), with ``optimise.generations`` > 0 ``ref_gain`` (G, nu, D)
+and ``ref_limit`` ()
+(see :class:`samcon.feedback.ClipPlan`), with
 ``feedback.index: phase`` also ``plan_bounds`` (the first cycle's segments, which gain, bias and anchors index), and
 attributes ``samples``, ``seconds``. Written to a temporary file and renamed.
 """
@@ -26,7 +28,7 @@ VERSION = 1
 FILE_NAME = "samcon.h5"
 
 
-_ANCHORS = ("anchor_features", "anchor_offsets", "feature_scale")
+_OPTIONAL = ("anchor_features", "anchor_offsets", "feature_scale", "ref_gain", "ref_limit")
 
 
 def save(path: str | Path, control_hz: float, results: list[tuple[Trajectory, ClipPlan]]) -> None:
@@ -45,8 +47,8 @@ def save(path: str | Path, control_hz: float, results: list[tuple[Trajectory, Cl
                     g.create_dataset(f"terms/{name}", data=values)
                 if not np.array_equal(plan.bounds, traj.bounds):
                     g.create_dataset("plan_bounds", data=plan.bounds)
-                for name in ("gain", "bias", *_ANCHORS):
-                    if getattr(plan, name) is not None:
+                for name in ("gain", "bias", *_OPTIONAL):
+                    if getattr(plan, name) is not None and (name != "ref_limit" or plan.ref_gain is not None):
                         g.create_dataset(name, data=getattr(plan, name))
                 g.attrs.update(samples=traj.samples, seconds=traj.seconds, backtracks=traj.backtracks)
         os.replace(tmp, path)
@@ -75,7 +77,9 @@ def load_plans(path: str | Path, control_hz: float) -> tuple[dict[str, ClipPlan]
             raise ValueError(f"{path}: feedback features {list(f.attrs['features'])} differ from this version's")
         plans, info = {}, {}
         for name, g in f["clips"].items():
-            anchors = {k: g[k][()] for k in _ANCHORS if k in g}
+            anchors = {k: g[k][()] for k in _OPTIONAL if k in g}
+            if "ref_limit" in anchors:
+                anchors["ref_limit"] = float(anchors["ref_limit"])
             bounds = g["plan_bounds"][()] if "plan_bounds" in g else g["bounds"][()]
             plans[name] = ClipPlan(targets=g["targets"][()], bounds=bounds, gain=g["gain"][()],
                                    bias=g["bias"][()], **anchors)  # fmt: skip

@@ -37,6 +37,7 @@ from samcon import store
 from samcon.config import FeedbackConfig, SamconConfig
 from samcon.cost import COST_TERMS
 from samcon.feedback import ClipPlan, FeedbackPolicy, fit_linear, open_loop_policy
+from samcon.optimise import optimise_gains, reduced_indices
 from samcon.search import SearchAbandoned, Trajectory, cycle_frames, horizon, samcon
 
 LEARNER = "samcon"
@@ -214,6 +215,11 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
             plan = ClipPlan(traj.targets, _plan_bounds(traj, m), *anchored(traj, fb, *fit_samples(again, fb, extra, m)))
     # The oracle's minutes are the open-loop search's; the feedback's extra searches are counted apart.
     traj.feedback_seconds, traj.feedback_samples = feedback_seconds, feedback_samples
+    if cfg.optimise.generations:
+        t0 = time.perf_counter()
+        plan, history = optimise_gains(plan, name, library, humanoid, cfg.optimise, cfg.train.eval, rng,
+                                       threads=cfg.train.threads, log=log)  # fmt: skip
+        traj.optimise = {"seconds": time.perf_counter() - t0, **history}
     return traj, plan
 
 
@@ -239,6 +245,8 @@ def _clip_rows(library: MotionLibrary, results: list[tuple[Trajectory, ClipPlan]
             "feedback": {k: float(feedback.per_clip[k][c]) for k in ("mpjpe_g", "mpjpe_l", "survival", "success")},
             "cost_total": float(traj.segment_cost.sum()), **diagnose(traj, cfg),
         }  # fmt: skip
+        if traj.optimise is not None:
+            rows[traj.clip]["optimise"] = traj.optimise
     return rows
 
 
@@ -272,6 +280,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         cfg = load_config(SamconConfig, args.config, overrides)
         humanoid = Humanoid(cfg.gym.physics)
         library = load_motions(list(cfg.train.motions), humanoid)
+        try:  # unknown feature or actuator names: refused before any output
+            reduced_indices(humanoid, cfg.optimise)
+        except ValueError as e:
+            raise ConfigError(f"{args.config}: {e}") from None
         run_dir = RunDir(args.out or f"runs/{LEARNER}-{datetime.now().strftime('%Y%m%d-%H%M%S')}", resume=False)
     except (ConfigError, RunDirError, MotionFormatError, FileNotFoundError) as e:
         sys.exit(f"error: {e}")

@@ -37,6 +37,14 @@ def test_debug_run_writes_its_run_directory(run: Path) -> None:
     log = (run / "progress.log").read_text()
     assert "walk: a search from frame 3 to 6 for the feedback regression" in log
     assert "walk segment 1/2" in log and "walk segment 2/2" in log
+    # The closed-loop gain search of the debug config: 2 generations, 2 groups of 6 features x 10 actuators.
+    opt = walk["optimise"]
+    assert opt["generation"] == [1, 2] and opt["parameters"] == 2 * 6 * 10 and opt["seconds"] > 0
+    assert "walk: generation 2/2: cost best" in log
+    import h5py
+
+    with h5py.File(run / "samcon.h5") as f:
+        assert f["clips/walk/ref_gain"].shape == (2, 28, 16) and float(f["clips/walk/ref_limit"][()]) == 0.5
 
 
 def test_compare_trackers_reads_a_samcon_run(run: Path, tmp_path: Path) -> None:
