@@ -264,6 +264,30 @@ def optimise_gains(plan: ClipPlan, name: str, library: MotionLibrary, humanoid: 
     return replace(plan, ref_gain=layout.gains(es.mean), ref_limit=config.max_correction), {**summary, **history}
 
 
+def plot_history(histories: dict[str, dict[str, Any]], path: Any) -> None:
+    """The closed-loop gain searches' learning curves, one panel per clip: the cost of the distribution's mean (what
+    is returned) and of the best candidate per generation, and the share of the episodes' frames the mean played
+    before a fall."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(histories), figsize=(5 * len(histories), 3.5), squeeze=False)
+    for ax, (name, h) in zip(axes[0], histories.items(), strict=True):
+        ax.plot(h["generation"], h["cost_at_mean"], label="cost at the mean")
+        ax.plot(h["generation"], h["cost_best"], label="best candidate's cost", alpha=0.6)
+        ax.plot(h["generation"], h["played_at_mean"], label="share played (mean)", linestyle="--")
+        ax.axhline(h["base_cost"], color="grey", linewidth=0.8, label="regressed policy alone")
+        ax.set_title(f"{name}: {h['parameters']} gains")
+        ax.set_xlabel("generation")
+        ax.set_ylim(0.0, 1.05)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def _say(log: Any, text: str) -> None:
     if log is not None:
         print(text, file=log, flush=True)

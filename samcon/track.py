@@ -4,7 +4,8 @@ For every clip: SAMCON from the clip's start (:mod:`samcon.search`), a linear fe
 from its samples (:mod:`samcon.feedback`), optionally refined by re-running SAMCON around it; then both judged by
 the shared evaluator: the open-loop trajectory from the clip's start (one episode per clip), the feedback policy
 under the run's protocol. The run directory holds ``config.yaml``, ``run_info.json``, ``samcon.h5``,
-``progress.log`` and ``results.json``.
+``progress.log`` and ``results.json`` (with ``optimise.generations`` > 0 also ``optimise.png``, the closed-loop gain
+search's learning curves).
 
 Example::
 
@@ -37,7 +38,7 @@ from samcon import store
 from samcon.config import FeedbackConfig, SamconConfig
 from samcon.cost import COST_TERMS
 from samcon.feedback import ClipPlan, FeedbackPolicy, fit_linear, open_loop_policy
-from samcon.optimise import optimise_gains, reduced_indices
+from samcon.optimise import optimise_gains, plot_history, reduced_indices
 from samcon.search import SearchAbandoned, Trajectory, cycle_frames, horizon, samcon
 
 LEARNER = "samcon"
@@ -319,6 +320,9 @@ def main(argv: Sequence[str] | None = None) -> None:
             out["clips"][name]["feedback_path_anchor"] = {k: float(path_only.per_clip[k][c]) for k in keys}
     with atomic_output(run_dir.path / "results.json") as tmp:
         tmp.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
+    histories = {traj.clip: traj.optimise for traj, _ in results if traj.optimise is not None}
+    if histories:
+        plot_history(histories, run_dir.path / "optimise.png")
     # The report takes the run's policy from this file (a SAMCON run has no training checkpoints).
     info.update(policy_file=store.FILE_NAME, samples=samples, train_seconds=seconds)
     with atomic_output(run_dir.run_info_path) as tmp:

@@ -24,7 +24,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_debug_run_writes_its_run_directory(run: Path) -> None:
-    for name in ("config.yaml", "run_info.json", "results.json", "samcon.h5", "progress.log"):
+    for name in ("config.yaml", "run_info.json", "results.json", "samcon.h5", "progress.log", "optimise.png"):
         assert (run / name).is_file(), name
     info = json.loads((run / "run_info.json").read_text())
     results = json.loads((run / "results.json").read_text())
