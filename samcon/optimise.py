@@ -59,6 +59,13 @@ def reduced_indices(humanoid: Humanoid, config: OptimiseConfig) -> tuple[np.ndar
         actuators.append(a)
     if len(set(features)) < len(features) or len(set(actuators)) < len(actuators):
         raise ValueError("optimise: features and actuators must not repeat")
+    if config.mirror:
+        fpart, _, apart, _ = mirror_maps(humanoid)
+        missing = [FEATURE_NAMES[f] for f in fpart[features] if f not in features]
+        missing += [humanoid.model.actuator(int(a)).name for a in apart[actuators] if a not in actuators]
+        if missing:
+            raise ValueError(f"optimise.mirror needs the left-right partner of every listed feature and actuator; "
+                             f"missing: {', '.join(missing)}")  # fmt: skip
     return np.array(features), np.array(actuators)
 
 

@@ -52,6 +52,9 @@ def test_reduced_indices_name_the_key_and_the_unknown_name(humanoid: Humanoid) -
         reduced_indices(humanoid, OptimiseConfig(features=["tilt"]))
     with pytest.raises(ValueError, match="optimise.actuators: no actuator 'knee'"):
         reduced_indices(humanoid, OptimiseConfig(actuators=["knee"]))
+    with pytest.raises(ValueError, match="missing: left_foot_y, right_ankle_x"):
+        reduced_indices(humanoid, OptimiseConfig(groups=2, mirror=True, features=["right_foot_y"],
+                                                 actuators=["left_ankle_x"]))  # fmt: skip
     with pytest.raises(ValueError, match="must not repeat"):
         reduced_indices(humanoid, OptimiseConfig(actuators=["left_knee", "left_knee"]))
 
