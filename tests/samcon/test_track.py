@@ -191,3 +191,15 @@ def test_sigma_choices_keep_the_cheaper_search(tmp_path: Path) -> None:
         kept, total = min((first, 0.02), (float(entries["0.5"]), 0.5))[::-1]
     assert row["sigma_init"] == kept and f"kept the search at sigma {kept:g}" in line
     assert row["cost_total"] == pytest.approx(total, rel=1e-12)
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "configs/samcon").glob("*.yaml")), ids=lambda p: p.name)
+def test_every_samcon_config_loads_and_names_real_features_and_actuators(path: Path) -> None:
+    from common.character.humanoid import Humanoid
+    from common.train.config import load_config
+    from samcon.config import SamconConfig
+    from samcon.optimise import reduced_indices
+
+    cfg = load_config(SamconConfig, str(path), [])
+    features, actuators = reduced_indices(Humanoid(cfg.gym.physics), cfg.optimise)
+    assert len(features) == len(cfg.optimise.features) and len(actuators) == len(cfg.optimise.actuators)
