@@ -203,3 +203,21 @@ def test_every_samcon_config_loads_and_names_real_features_and_actuators(path: P
     cfg = load_config(SamconConfig, str(path), [])
     features, actuators = reduced_indices(Humanoid(cfg.gym.physics), cfg.optimise)
     assert len(features) == len(cfg.optimise.features) and len(actuators) == len(cfg.optimise.actuators)
+
+
+def test_feedback_walk_config_is_the_default_but_for_its_experiment() -> None:
+    """A config file starts from the dataclass defaults, not from default.yaml: feedback-walk.yaml must repeat the
+    default's settings (a partial copy ran without the look-ahead and fell 40 times)."""
+    from dataclasses import asdict
+
+    from common.train.config import load_config
+    from samcon.config import SamconConfig
+
+    default = asdict(load_config(SamconConfig, str(ROOT / "configs/samcon/default.yaml"), []))
+    walk = asdict(load_config(SamconConfig, str(ROOT / "configs/samcon/feedback-walk.yaml"), []))
+    sections = [sec for sec in default if sec != "optimise"]
+    changed = {(sec, k) for sec in sections for k in default[sec] if default[sec][k] != walk[sec][k]}
+    assert changed == {("train", "eval"), ("search", "sigma_init"), ("search", "align_cycle"), ("feedback", "anchor"),
+                       ("feedback", "starts"), ("feedback", "start_segments"), ("feedback", "index"),
+                       ("feedback", "refine_iterations")}  # fmt: skip
+    assert walk["train"]["eval"] == {**default["train"]["eval"], "starts_per_clip": 16}
