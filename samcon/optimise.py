@@ -29,7 +29,7 @@ import cma
 import mujoco
 import numpy as np
 
-from common.character.humanoid import Humanoid
+from common.character.humanoid import Humanoid, mirror_name
 from common.motion.library import MotionLibrary
 from common.sim.gym import GymConfig, TrackingGym
 from common.train import metrics as M
@@ -69,14 +69,6 @@ def reduced_indices(humanoid: Humanoid, config: OptimiseConfig) -> tuple[np.ndar
     return np.array(features), np.array(actuators)
 
 
-def _partner(name: str) -> str:
-    """The left-right mirror of a body part's name (itself for the chest, neck and root)."""
-    for a, b in (("right_", "left_"), ("left_", "right_")):
-        if name.startswith(a) or f"_{a}" in name:
-            return name.replace(a, b, 1)
-    return name
-
-
 def mirror_maps(humanoid: Humanoid) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The sagittal mirror (y -> -y in the heading frame, x forward, y left, z up) of features and actuators.
 
@@ -89,7 +81,7 @@ def mirror_maps(humanoid: Humanoid) -> tuple[np.ndarray, np.ndarray, np.ndarray,
         feature partner (D,), feature sign (D,), actuator partner (nu,), actuator sign (nu,): the mirror of state s
         is ``sign * s[partner]``, that of offsets a likewise.
     """
-    fpart = np.array([FEATURE_NAMES.index(_partner(n)) for n in FEATURE_NAMES])
+    fpart = np.array([FEATURE_NAMES.index(mirror_name(n)) for n in FEATURE_NAMES])
     rotation = ("root_tilt_", "root_ang_vel_")
     fsign = np.array([(-1.0 if n[-1] in "xz" else 1.0) if n.startswith(rotation) else (-1.0 if n[-1] == "y" else 1.0)
                       for n in FEATURE_NAMES])  # fmt: skip
@@ -99,7 +91,7 @@ def mirror_maps(humanoid: Humanoid) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     data.qpos[3] = 1.0
     mujoco.mj_kinematics(m, data)
     names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in range(m.nu)]
-    apart = np.array([names.index(_partner(n)) for n in names])
+    apart = np.array([names.index(mirror_name(n)) for n in names])
     axes = data.xaxis[m.actuator_trnid[:, 0]]
     asign = np.einsum("ad,ad->a", axes[apart], -axes * np.array([1.0, -1.0, 1.0]))
     if not np.allclose(np.abs(asign), 1.0, atol=1e-6):

@@ -38,6 +38,16 @@ DEEPMIMIC_JOINTS: tuple[tuple[str, str, str], ...] = (
 ROOT_BODY = "pelvis"
 HEAD_BODY = "head"
 FOOT_BODIES = ("right_foot", "left_foot")
+
+
+def mirror_name(name: str) -> str:
+    """The left-right twin of a joint, body, actuator or feature name (``left_*`` <-> ``right_*``); itself for the
+    names of neither side (chest, neck, root)."""
+    if name.startswith("left_"):
+        return "right_" + name[len("left_") :]
+    if name.startswith("right_"):
+        return "left_" + name[len("right_") :]
+    return name
 HAND_BODIES = ("right_hand", "left_hand")
 # DeepMimic's EnableFallContact bodies: touching the ground with one of them is a fall.
 FALL_CONTACT_BODIES = ("pelvis", "torso", "head")

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from common.character.humanoid import DEEPMIMIC_JOINTS, BodyGeometry, Humanoid
+from common.character.humanoid import DEEPMIMIC_JOINTS, BodyGeometry, Humanoid, mirror_name
 from common.motion.library import MotionLibrary
 from common.motion.motion import LOOP_MODES, Clip
 
@@ -40,8 +40,7 @@ def mirror(clip: Clip) -> Clip:
     """Left-right mirror (as DeepMimic's ``_mirror`` clips): reflected through the character's sagittal plane
     (y -> -y) with every left joint's rotation swapped for its right twin's. Mirroring twice is the identity."""
     names = [n for n, _, _ in DEEPMIMIC_JOINTS]
-    swap = [names.index(n.replace("left_", "right_") if n.startswith("left_") else n.replace("right_", "left_"))
-            for n in names]  # fmt: skip
+    swap = [names.index(mirror_name(n)) for n in names]
     root_pos = clip.root_pos * np.array([1.0, -1.0, 1.0])
     return replace(clip, name=clip.name, root_pos=root_pos, root_rot=_mirror_quat(clip.root_rot),
                    joint_rot=_mirror_quat(clip.joint_rot[:, swap]))  # fmt: skip
