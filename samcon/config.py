@@ -262,6 +262,10 @@ class OptimiseConfig:
         error_scale: m of mean body position error that costs as much as a fallen frame (errors above it cost 1).
         max_correction: The largest correction per actuator (rad); beyond it the correction is clipped.
         min_spread: The smallest spread a feature is scaled by (its units: m, rad, m/s, rad/s).
+        offsets: Actuators whose open-loop offset the search also moves, one value per segment of the plan (with
+            ``feedback.index: phase`` the cycle's segments; Ding et al. 2015 optimise the feed-forward with the
+            gains): the nominal the gains correct around is then itself shaped by the closed loop. Not mirrored.
+        offset_sigma: rad, the initial step of those offsets (the gains' is ``sigma``).
     """
 
     generations: int = 0
@@ -276,12 +280,14 @@ class OptimiseConfig:
     error_scale: float = 0.5
     max_correction: float = 0.5
     min_spread: float = 0.01
+    offsets: list[str] = field(default_factory=list)
+    offset_sigma: float = 0.05
 
     def __post_init__(self) -> None:
         if self.generations < 0 or self.population < 2 or self.starts < 1 or self.frames < 1 or self.groups < 1:
             raise ValueError("optimise: need generations >= 0, population >= 2, starts >= 1, frames >= 1, groups >= 1")
-        if min(self.sigma, self.error_scale, self.max_correction, self.min_spread) <= 0:
-            raise ValueError("optimise: need sigma, error_scale, max_correction and min_spread > 0")
+        if min(self.sigma, self.error_scale, self.max_correction, self.min_spread, self.offset_sigma) <= 0:
+            raise ValueError("optimise: need sigma, error_scale, max_correction, min_spread and offset_sigma > 0")
         if not self.features or not self.actuators:
             raise ValueError("optimise: features and actuators must not be empty")
         if self.mirror and self.groups % 2:

@@ -62,6 +62,8 @@ class ClipPlan:
             ``R_g (s - s*_p)`` with anchors (zero on a searched path's own states), else ``R_g s``, g the segment's
             group (G groups split the segments evenly). Shape: (G, nu, D). None: none.
         ref_limit: The largest correction per actuator (rad); beyond it it is clipped.
+        ref_offset: Open-loop offsets optimised in closed loop (``optimise.offsets``), added to segment k's offset
+            (not clipped). Shape: (S, nu). None: none.
     """
 
     targets: np.ndarray
@@ -73,6 +75,7 @@ class ClipPlan:
     feature_scale: np.ndarray | None = None
     ref_gain: np.ndarray | None = None
     ref_limit: float = np.inf
+    ref_offset: np.ndarray | None = None
 
     def group(self, k: int, groups: int) -> int:
         """The group of segment ``k`` when the plan's segments are split evenly into ``groups``."""
@@ -93,8 +96,11 @@ class ClipPlan:
 
     def offset(self, k: int, s: np.ndarray) -> np.ndarray:
         """The offset of segment ``k`` for features ``s`` (D,): :meth:`regressed` plus, with ``ref_gain``, the
-        closed-loop gains' ``R_g`` times the deviation it gives (clipped to ``ref_limit``). Shape: (nu,)."""
+        closed-loop gains' ``R_g`` times the deviation it gives (clipped to ``ref_limit``), plus ``ref_offset[k]``.
+        Shape: (nu,)."""
         out, diff = self.regressed(k, s)
+        if self.ref_offset is not None:
+            out = out + self.ref_offset[k]
         if self.ref_gain is not None:
             out = out + np.clip(self.ref_gain[self.group(k, len(self.ref_gain))] @ diff, -self.ref_limit,
                                 self.ref_limit)  # fmt: skip

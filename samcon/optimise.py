@@ -22,7 +22,7 @@ fitted to the episodes they are judged on.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cma
@@ -39,8 +39,21 @@ from samcon.cost import FEATURE_NAMES
 from samcon.feedback import ClipPlan, FeedbackPolicy
 
 
-def reduced_indices(humanoid: Humanoid, config: OptimiseConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The feature and actuator indices the gains connect.
+def _actuator_ids(humanoid: Humanoid, names: list[str], key: str) -> list[int]:
+    out = []
+    for name in names:
+        a = mujoco.mj_name2id(humanoid.model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
+        if a < 0:
+            known = [mujoco.mj_id2name(humanoid.model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) for i in range(humanoid.nu)]
+            raise ValueError(f"optimise.{key}: no actuator '{name}'; actuators: {', '.join(known)}")
+        out.append(a)
+    if len(set(out)) < len(out):
+        raise ValueError(f"optimise.{key}: actuators must not repeat")
+    return out
+
+
+def reduced_indices(humanoid: Humanoid, config: OptimiseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The feature and actuator indices the gains connect, and the actuators whose open-loop offsets are searched.
 
     Raises:
         ValueError: Naming the config key and the unknown name.
@@ -50,15 +63,10 @@ def reduced_indices(humanoid: Humanoid, config: OptimiseConfig) -> tuple[np.ndar
         if name not in FEATURE_NAMES:
             raise ValueError(f"optimise.features: no feature '{name}'; features: {', '.join(FEATURE_NAMES)}")
         features.append(FEATURE_NAMES.index(name))
-    actuators = []
-    for name in config.actuators:
-        a = mujoco.mj_name2id(humanoid.model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
-        if a < 0:
-            names = [mujoco.mj_id2name(humanoid.model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) for i in range(humanoid.nu)]
-            raise ValueError(f"optimise.actuators: no actuator '{name}'; actuators: {', '.join(names)}")
-        actuators.append(a)
-    if len(set(features)) < len(features) or len(set(actuators)) < len(actuators):
-        raise ValueError("optimise: features and actuators must not repeat")
+    if len(set(features)) < len(features):
+        raise ValueError("optimise.features: features must not repeat")
+    actuators = _actuator_ids(humanoid, config.actuators, "actuators")
+    offsets = _actuator_ids(humanoid, config.offsets, "offsets")
     if config.mirror:
         fpart, _, apart, _ = mirror_maps(humanoid)
         missing = [FEATURE_NAMES[f] for f in fpart[features] if f not in features]
@@ -66,7 +74,7 @@ def reduced_indices(humanoid: Humanoid, config: OptimiseConfig) -> tuple[np.ndar
         if missing:
             raise ValueError(f"optimise.mirror needs the left-right partner of every listed feature and actuator; "
                              f"missing: {', '.join(missing)}")  # fmt: skip
-    return np.array(features), np.array(actuators)
+    return np.array(features, dtype=np.int64), np.array(actuators, dtype=np.int64), np.array(offsets, dtype=np.int64)
 
 
 def mirror_maps(humanoid: Humanoid) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -101,10 +109,12 @@ def mirror_maps(humanoid: Humanoid) -> tuple[np.ndarray, np.ndarray, np.ndarray,
 
 @dataclass
 class GainLayout:
-    """Where a parameter vector's entries go: ``groups`` matrices (nu, D), each nonzero at (actuators x features),
-    the features divided by ``scale``. Parameters in group-major, then actuator-major order. With ``mirror`` (the
-    partner indices and signs of :func:`mirror_maps`), only the first half of the groups is free and group
-    ``g + groups / 2`` is the mirror image of group g: ``R'[a, f] = sign_a sign_f R[partner a, partner f]``."""
+    """Where a parameter vector's entries go: first ``groups`` gain matrices (nu, D), each nonzero at (actuators x
+    features), the features divided by ``scale``, in group-major, then actuator-major order; then, with
+    ``offset_actuators``, one open-loop offset per segment of the plan (``segments``) and listed actuator, in
+    segment-major order. With ``mirror`` (the partner indices and signs of :func:`mirror_maps`), only the first half
+    of the groups is free and group ``g + groups / 2`` is the mirror image of group g:
+    ``R'[a, f] = sign_a sign_f R[partner a, partner f]``; the offsets are not mirrored."""
 
     groups: int
     nu: int
@@ -112,6 +122,8 @@ class GainLayout:
     actuators: np.ndarray
     scale: np.ndarray
     mirror: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+    offset_actuators: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    segments: int = 0
 
     def __post_init__(self) -> None:
         if self.mirror is not None:
@@ -126,13 +138,17 @@ class GainLayout:
         return self.groups // 2 if self.mirror is not None else self.groups
 
     @property
-    def size(self) -> int:
+    def gain_size(self) -> int:
         return self.free_groups * len(self.actuators) * len(self.features)
+
+    @property
+    def size(self) -> int:
+        return self.gain_size + self.segments * len(self.offset_actuators)
 
     def gains(self, theta: np.ndarray) -> np.ndarray:
         """Gain matrices of parameter vectors ``theta`` (..., size). Shape: (..., groups, nu, D)."""
         lead = theta.shape[:-1]
-        blocks = theta.reshape(*lead, self.free_groups, len(self.actuators), len(self.features))
+        blocks = theta[..., : self.gain_size].reshape(*lead, self.free_groups, len(self.actuators), len(self.features))
         out = np.zeros((*lead, self.free_groups, self.nu, len(FEATURE_NAMES)))
         out[..., self.actuators[:, None], self.features[None, :]] = blocks / self.scale[self.features]
         if self.mirror is None:
@@ -141,26 +157,37 @@ class GainLayout:
         mirrored = out[..., apart[:, None], fpart[None, :]] * asign[:, None] * fsign[None, :]
         return np.concatenate([out, mirrored], axis=-3)
 
+    def offsets(self, theta: np.ndarray) -> np.ndarray:
+        """Per-segment open-loop offsets of parameter vectors ``theta`` (..., size). Shape: (..., segments, nu)."""
+        lead = theta.shape[:-1]
+        out = np.zeros((*lead, self.segments, self.nu))
+        tail = theta[..., self.gain_size :]
+        out[..., self.offset_actuators] = tail.reshape(*lead, self.segments, len(self.offset_actuators))
+        return out
+
 
 class CandidatePolicy(FeedbackPolicy):
-    """The regressed policy of one clip plus, per character, its own reference gains (groups, nu, D)."""
+    """The regressed policy of one clip plus, per character, its own reference gains (groups, nu, D) and, if given,
+    its own per-segment offsets (S, nu)."""
 
     def __init__(self, plan: ClipPlan, name: str, library: MotionLibrary, humanoid: Humanoid, gains: np.ndarray,
-                 limit: float) -> None:  # fmt: skip
+                 limit: float, offsets: np.ndarray | None = None) -> None:  # fmt: skip
         super().__init__({name: plan}, library, humanoid)
-        self.gains, self.limit = gains, limit
+        self.gains, self.limit, self.offsets = gains, limit, offsets
         self.deviations: list[np.ndarray] = []  # every deviation the gains were applied to
 
     def _offset(self, i: int, plan: ClipPlan, k: int, s: np.ndarray) -> np.ndarray:
         gain = self.gains[i, plan.group(k, self.gains.shape[1])]
         base, diff = plan.regressed(k, s)
         self.deviations.append(diff)
-        return base + np.clip(gain @ diff, -self.limit, self.limit)
+        out = base + np.clip(gain @ diff, -self.limit, self.limit)
+        return out if self.offsets is None else out + self.offsets[i, k]
 
 
 def rollout_cost(plan: ClipPlan, name: str, library: MotionLibrary, humanoid: Humanoid, gains: np.ndarray,
                  limit: float, times: np.ndarray, frames: int, ev: EvalConfig, error_scale: float, threads: int = 1,
-                 collect: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+                 collect: list[np.ndarray] | None = None,
+                 offsets: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Each of C candidates' gains from each of S starts, batched in one gym (evaluator's failure rule, no autoreset).
 
     Args:
@@ -169,6 +196,7 @@ def rollout_cost(plan: ClipPlan, name: str, library: MotionLibrary, humanoid: Hu
         times: Start times in the clip (s). Shape: (S,).
         frames: Steps per episode (cut at a one-shot clip's last frame).
         collect: If given, the deviations the gains were applied to (D,) are appended to it.
+        offsets: Per candidate, open-loop offsets added to every segment's (plan segments). Shape: (C, K, nu).
 
     Returns:
         cost (C,): mean over starts and frames of 1 once failed, else min(body error / error_scale, 1);
@@ -180,7 +208,8 @@ def rollout_cost(plan: ClipPlan, name: str, library: MotionLibrary, humanoid: Hu
     horizon = max(1, min(frames, left))
     gym = TrackingGym(GymConfig(num_envs=ncand * nstart, threads=threads, seed=ev.seed, physics=humanoid.physics,
                                 termination=ev.termination, rsi_lift=ev.rsi_lift), library, humanoid)  # fmt: skip
-    policy = CandidatePolicy(plan, name, library, humanoid, np.repeat(gains, nstart, axis=0), limit)
+    each = None if offsets is None else np.repeat(offsets, nstart, axis=0)
+    policy = CandidatePolicy(plan, name, library, humanoid, np.repeat(gains, nstart, axis=0), limit, each)
     try:
         result = gym.reset(clips=np.full(ncand * nstart, clip), times=np.tile(times, ncand))
         alive = np.ones(ncand * nstart, dtype=bool)
@@ -214,13 +243,14 @@ def draw_starts(library: MotionLibrary, name: str, count: int, frames: int, rng:
 def optimise_gains(plan: ClipPlan, name: str, library: MotionLibrary, humanoid: Humanoid, config: OptimiseConfig,
                    ev: EvalConfig, rng: np.random.Generator, threads: int = 1,
                    log: Any = None) -> tuple[ClipPlan, dict[str, Any]]:  # fmt: skip
-    """CMA-ES over the reduced reference gains of one clip's plan.
+    """CMA-ES over the reduced reference gains of one clip's plan (and, with ``config.offsets``, its per-segment
+    open-loop offsets on those actuators).
 
     Returns:
-        The plan with ``ref_gain`` set to the search's final mean, and a history
+        The plan with ``ref_gain`` (and ``ref_offset``) set to the search's final mean, and a history
         {"generation", "cost_mean", "cost_best", "played_best", "cost_at_mean", "played_at_mean"} of lists.
     """
-    features, actuators = reduced_indices(humanoid, config)
+    features, actuators, offset_actuators = reduced_indices(humanoid, config)
     # The deviations' spread under the regressed policy alone, from one batch of starts (the gains' units): the
     # median absolute deviation, as a standard deviation, so that the falls' huge deviations do not set it.
     seen: list[np.ndarray] = []
@@ -236,21 +266,27 @@ def optimise_gains(plan: ClipPlan, name: str, library: MotionLibrary, humanoid: 
     mirror = mirror_maps(humanoid) if config.mirror else None
     if mirror is not None:
         scale = np.maximum(scale, scale[mirror[0]])
-    layout = GainLayout(config.groups, humanoid.nu, features, actuators, scale, mirror)
+    layout = GainLayout(config.groups, humanoid.nu, features, actuators, scale, mirror, offset_actuators,
+                        len(plan.bounds) - 1 if len(offset_actuators) else 0)  # fmt: skip
+    # One step size, per-coordinate scales: the offsets (rad) start at offset_sigma, the gains at sigma.
+    stds = np.concatenate([np.ones(layout.gain_size), np.full(layout.size - layout.gain_size,
+                                                                config.offset_sigma / config.sigma)])  # fmt: skip
     es = cma.CMAEvolutionStrategy(np.zeros(layout.size), config.sigma,
                                   {"popsize": config.population, "seed": int(rng.integers(1, 2**31 - 1)),
-                                   "verbose": -9})  # fmt: skip
+                                   "verbose": -9, "CMA_stds": stds})  # fmt: skip
     history: dict[str, list[float]] = {k: [] for k in ("generation", "cost_mean", "cost_best", "played_best",
                                                       "cost_at_mean", "played_at_mean")}  # fmt: skip
-    _say(log, f"{name}: closed-loop gains ({layout.size} parameters): regressed policy alone costs "
+    _say(log, f"{name}: closed-loop gains ({layout.size} parameters, {layout.size - layout.gain_size} of them "
+              f"offsets): regressed policy alone costs "
               f"{base_cost[0]:.3f}, plays {base_played[0]:.0%} of {config.frames} frames")  # fmt: skip
     for gen in range(config.generations):
         candidates = np.asarray(es.ask())
         # The distribution's mean rides along as one more candidate: the learning curve of what is returned.
         theta = np.concatenate([candidates, es.mean[None]])
         times = draw_starts(library, name, config.starts, config.frames, rng)
+        offsets = layout.offsets(theta) if layout.segments else None
         cost, played = rollout_cost(plan, name, library, humanoid, layout.gains(theta), config.max_correction, times,
-                                    config.frames, ev, config.error_scale, threads)  # fmt: skip
+                                    config.frames, ev, config.error_scale, threads, offsets=offsets)  # fmt: skip
         es.tell(list(candidates), list(cost[:-1]))
         b = int(np.argmin(cost[:-1]))
         for key, value in zip(history, (gen + 1, float(cost[:-1].mean()), float(cost[b]), float(played[b]),
@@ -260,7 +296,9 @@ def optimise_gains(plan: ClipPlan, name: str, library: MotionLibrary, humanoid: 
                   f"{cost[:-1].mean():.3f}; the mean's {cost[-1]:.3f}, plays {played[-1]:.0%}; "
                   f"step {es.sigma:.3g}")  # fmt: skip
     summary = {"parameters": layout.size, "base_cost": float(base_cost[0]), "base_played": float(base_played[0])}
-    return replace(plan, ref_gain=layout.gains(es.mean), ref_limit=config.max_correction), {**summary, **history}
+    ref_offset = layout.offsets(es.mean) if layout.segments else None
+    new = replace(plan, ref_gain=layout.gains(es.mean), ref_limit=config.max_correction, ref_offset=ref_offset)
+    return new, {**summary, **history}
 
 
 def plot_history(histories: dict[str, dict[str, Any]], path: Any) -> None:

@@ -5,10 +5,9 @@ group ``clips/<name>`` with datasets ``targets`` (F, nu), ``offsets`` (S, nu), `
 ``segment_cost`` (S,), ``terms/<term>`` (S,), ``start_state`` (nstate,), ``end_states`` (S, nstate), ``gain``
 (S, nu, D), ``bias`` (S, nu), with ``feedback.anchor: nearest`` also ``anchor_features`` (S, P, D),
 ``anchor_offsets`` (S, P, nu) and ``feature_scale`` (D,), with ``optimise.generations`` > 0 ``ref_gain`` (G, nu, D)
-and ``ref_limit`` ()
-(see :class:`samcon.feedback.ClipPlan`), with
-``feedback.index: phase`` also ``plan_bounds`` (the first cycle's segments, which gain, bias and anchors index), and
-attributes ``samples``, ``seconds``. Written to a temporary file and renamed.
+and ``ref_limit`` (), with ``optimise.offsets`` also ``ref_offset`` (S, nu) (see :class:`samcon.feedback.ClipPlan`),
+with ``feedback.index: phase`` also ``plan_bounds`` (the first cycle's segments, which gain, bias and anchors index),
+and attributes ``samples``, ``seconds``. Written to a temporary file and renamed.
 """
 
 from __future__ import annotations
@@ -28,7 +27,7 @@ VERSION = 1
 FILE_NAME = "samcon.h5"
 
 
-_OPTIONAL = ("anchor_features", "anchor_offsets", "feature_scale", "ref_gain", "ref_limit")
+_OPTIONAL = ("anchor_features", "anchor_offsets", "feature_scale", "ref_gain", "ref_limit", "ref_offset")
 
 
 def save(path: str | Path, control_hz: float, results: list[tuple[Trajectory, ClipPlan]]) -> None:

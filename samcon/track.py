@@ -282,7 +282,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         humanoid = Humanoid(cfg.gym.physics)
         library = load_motions(list(cfg.train.motions), humanoid)
         try:  # unknown feature or actuator names: refused before any output
-            reduced_indices(humanoid, cfg.optimise)
+            reduced_indices(humanoid, cfg.optimise)  # names of features, gain and offset actuators
         except ValueError as e:
             raise ConfigError(f"{args.config}: {e}") from None
         run_dir = RunDir(args.out or f"runs/{LEARNER}-{datetime.now().strftime('%Y%m%d-%H%M%S')}", resume=False)

@@ -92,6 +92,10 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
 def load_config(cls: type[T], path: str | Path, overrides: Sequence[str] = ()) -> T:
     """Read a YAML config file, apply command-line overrides and build the dataclass.
 
+    A file's keys start from the dataclass defaults, or, with a top-level ``base: other.yaml`` (a path relative to
+    the file), from that file's resolved mapping: sections merge key by key, anything else this file names replaces
+    the base's value. So an experiment's config can hold only what it changes.
+
     Args:
         cls: Dataclass type of the config.
         path: YAML file holding a mapping (an empty file means all defaults).
@@ -104,9 +108,19 @@ def load_config(cls: type[T], path: str | Path, overrides: Sequence[str] = ()) -
         ConfigError: On unreadable YAML, a malformed or unknown override, unknown keys, missing required
             keys, wrong types or a failing ``__post_init__``.
     """
+    data = _read_mapping(cls, Path(path), ())
+    data = apply_overrides(cls, data, overrides)
+    return from_dict(cls, data, source=str(path))
+
+
+BASE_KEY = "base"
+
+
+def _read_mapping(cls: type, path: Path, chain: tuple[Path, ...]) -> dict[str, Any]:
+    """The top-level mapping of a config file with its ``base`` chain merged in (the base first)."""
     source = str(path)
     try:
-        data = parse_yaml(Path(path).read_text(encoding="utf-8"))
+        data = parse_yaml(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as e:
         raise ConfigError(f"{source}: not a text file (byte 0x{e.object[e.start]:02x} at offset {e.start} is not "
                           "UTF-8); a config is YAML text") from None  # fmt: skip
@@ -116,8 +130,29 @@ def load_config(cls: type[T], path: str | Path, overrides: Sequence[str] = ()) -
         data = {}
     if not isinstance(data, Mapping):
         raise ConfigError(f"{source}: top level must be a mapping, got {type(data).__name__}")
-    data = apply_overrides(cls, data, overrides)
-    return from_dict(cls, data, source=source)
+    data = dict(data)
+    if BASE_KEY not in data or BASE_KEY in {f.name for f in dataclasses.fields(cls)}:
+        return data
+    base = data.pop(BASE_KEY)
+    if not isinstance(base, str) or not base:
+        raise ConfigError(f"{source}: '{BASE_KEY}' must be the path of another config file, got {base!r}")
+    base_path = (path.parent / base).resolve()
+    if base_path in chain or base_path == path.resolve():
+        raise ConfigError(f"{source}: '{BASE_KEY}: {base}' makes a cycle of base files")
+    if not base_path.is_file():
+        raise ConfigError(f"{source}: '{BASE_KEY}: {base}': no such file {base_path}")
+    return _merge(_read_mapping(cls, base_path, (*chain, path.resolve())), data)
+
+
+def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``over``'s keys: mappings on both sides merge recursively, other values replace."""
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
 
 
 def apply_overrides(cls: type, data: Mapping[str, Any], overrides: Sequence[str]) -> dict[str, Any]:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -220,3 +220,31 @@ def test_from_dict_requires_dataclass_type() -> None:
     with pytest.raises(TypeError):
         to_dict(RunCfg)
     assert from_dict(EnvCfg, {}) == EnvCfg()
+
+
+def test_a_base_file_supplies_what_the_config_does_not_name(tmp_path: Path) -> None:
+    _write(tmp_path, "name: walk\nseed: 3\ntrain:\n  batch_size: 64\n  hidden: [8, 8]\nenv:\n  num_envs: 8\n", "b.yaml")
+    sub = tmp_path / "exp"
+    sub.mkdir()
+    path = _write(sub, "base: ../b.yaml\ntrain:\n  lr: 0.5\n  hidden: [4]\n")
+    cfg = load_config(RunCfg, path, ["env.dt=0.02"])
+    # Sections merge key by key (train keeps the base's batch_size), lists and scalars replace, overrides come last.
+    assert cfg == RunCfg(name="walk", seed=3, train=TrainCfg(batch_size=64, lr=0.5, hidden=(4,)),
+                         env=EnvCfg(num_envs=8, dt=0.02))  # fmt: skip
+    # A chain of bases: the nearest wins.
+    top = _write(sub, "base: x.yaml\nseed: 9\n", "top.yaml")
+    assert load_config(RunCfg, top) == replace(cfg, seed=9, env=EnvCfg(num_envs=8))
+
+
+def test_a_bad_base_is_refused_naming_the_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"x\.yaml: 'base: nosuch.yaml': no such file"):
+        load_config(RunCfg, _write(tmp_path, "base: nosuch.yaml\nname: a\n"))
+    with pytest.raises(ConfigError, match=r"'base' must be the path of another config file, got 3"):
+        load_config(RunCfg, _write(tmp_path, "base: 3\nname: a\n"))
+    _write(tmp_path, "base: b.yaml\nname: a\n", "a.yaml")
+    with pytest.raises(ConfigError, match="makes a cycle of base files"):
+        load_config(RunCfg, _write(tmp_path, "base: a.yaml\n", "b.yaml"))
+    # An unknown key in the base is still refused.
+    _write(tmp_path, "name: a\nsed: 1\n", "c.yaml")
+    with pytest.raises(ConfigError, match="unknown key 'sed'"):
+        load_config(RunCfg, _write(tmp_path, "base: c.yaml\n", "d.yaml"))

@@ -46,7 +46,7 @@ def test_layout_puts_each_parameter_at_its_actuator_and_scaled_feature() -> None
 
 
 def test_reduced_indices_name_the_key_and_the_unknown_name(humanoid: Humanoid) -> None:
-    f, a = reduced_indices(humanoid, OptimiseConfig(features=["root_tilt_y"], actuators=["left_knee", "chest_x"]))
+    f, a, _ = reduced_indices(humanoid, OptimiseConfig(features=["root_tilt_y"], actuators=["left_knee", "chest_x"]))
     assert f.tolist() == [FEATURE_NAMES.index("root_tilt_y")] and a.tolist() == [24, 0]
     with pytest.raises(ValueError, match="optimise.features: no feature 'tilt'"):
         reduced_indices(humanoid, OptimiseConfig(features=["tilt"]))
@@ -156,7 +156,7 @@ def test_mirrored_groups_are_the_mirror_image_of_the_free_ones(humanoid: Humanoi
     from samcon.optimise import mirror_maps
 
     mirror = mirror_maps(humanoid)
-    features, actuators = reduced_indices(humanoid, OptimiseConfig(
+    features, actuators, _ = reduced_indices(humanoid, OptimiseConfig(
         features=["root_tilt_x", "right_foot_y", "left_foot_y"], actuators=["right_hip_x", "left_hip_x"]))  # fmt: skip
     layout = GainLayout(2, humanoid.nu, features, actuators, np.ones(D), mirror)
     assert layout.size == 6
@@ -172,3 +172,56 @@ def test_mirrored_groups_are_the_mirror_image_of_the_free_ones(humanoid: Humanoi
         GainLayout(2, humanoid.nu, features[:2], actuators, np.ones(D), mirror)
     with pytest.raises(ValueError, match="even number of groups"):
         GainLayout(3, humanoid.nu, features, actuators, np.ones(D), mirror)
+
+
+def test_layout_puts_the_offsets_after_the_gains_segment_major() -> None:
+    layout = GainLayout(groups=1, nu=5, features=np.array([2]), actuators=np.array([1]), scale=np.ones(D),
+                        offset_actuators=np.array([4, 0]), segments=3)  # fmt: skip
+    assert layout.gain_size == 1 and layout.size == 1 + 3 * 2
+    theta = np.arange(1.0, 8.0)
+    off = layout.offsets(theta)
+    # Parameter 1 is the gain; then segment 0: actuator 4 <- 2, actuator 0 <- 3; segment 1: 4, 5; segment 2: 6, 7.
+    np.testing.assert_array_equal(off, [[3, 0, 0, 0, 2], [5, 0, 0, 0, 4], [7, 0, 0, 0, 6]])
+    assert layout.gains(theta)[0, 1, 2] == 1.0 and np.count_nonzero(layout.gains(theta)) == 1
+    np.testing.assert_array_equal(layout.offsets(np.stack([theta, -theta]))[1], -off)
+    # Without offset actuators there are none.
+    assert GainLayout(1, 5, np.array([2]), np.array([1]), np.ones(D)).offsets(np.ones(1)).shape == (0, 5)
+
+
+def test_plan_adds_its_optimised_offset_of_the_segment() -> None:
+    rng = np.random.default_rng(1)
+    plan = replace(_playback_plan(segments=3, nu=4), gain=rng.normal(size=(3, 4, D)), bias=rng.normal(size=(3, 4)))
+    ref_offset = rng.normal(size=(3, 4))
+    s = rng.normal(size=D)
+    with_off = replace(plan, ref_offset=ref_offset)
+    for k in range(3):
+        np.testing.assert_allclose(with_off.offset(k, s), plan.offset(k, s) + ref_offset[k], rtol=1e-12)
+
+
+def test_rollout_offsets_change_the_play_and_zero_offsets_do_not(humanoid: Humanoid) -> None:
+    library = load_motions(["walk"], humanoid)
+    plan = _playback_plan()
+    gains = np.zeros((3, 1, humanoid.nu, D))
+    offsets = np.zeros((3, 4, humanoid.nu))
+    offsets[2, :, 17] = 0.6  # candidate 2 bends its right knee 0.6 rad further in every segment
+    times = np.array([0.0, 0.2])
+    ev = EvalConfig(threads=1)
+    cost, played = rollout_cost(plan, "walk", library, humanoid, gains, 0.5, times, 24, ev, 0.5, offsets=offsets)
+    plain, _ = rollout_cost(plan, "walk", library, humanoid, gains[:1], 0.5, times, 24, ev, 0.5)
+    assert cost[0] == cost[1] == plain[0]
+    assert cost[2] > cost[0] + 1e-3
+
+
+def test_optimise_searches_the_offsets_of_the_listed_actuators(humanoid: Humanoid) -> None:
+    library = load_motions(["walk"], humanoid)
+    cfg = OptimiseConfig(generations=2, population=3, starts=2, frames=6, features=["root_vel_x"],
+                         actuators=["right_hip_y"], offsets=["left_knee", "chest_x"])  # fmt: skip
+    plan = _playback_plan()
+    new, history = optimise_gains(plan, "walk", library, humanoid, cfg, EvalConfig(threads=1),
+                                  np.random.default_rng(0))  # fmt: skip
+    assert history["parameters"] == 1 + 4 * 2 and new.ref_offset.shape == (4, humanoid.nu)
+    assert np.count_nonzero(new.ref_offset[:, [24, 0]]) == 8 and np.count_nonzero(new.ref_offset) == 8
+    with pytest.raises(ValueError, match="optimise.offsets: no actuator 'knee'"):
+        reduced_indices(humanoid, OptimiseConfig(offsets=["knee"]))
+    with pytest.raises(ValueError, match="offset_sigma"):
+        OptimiseConfig(offset_sigma=0.0)

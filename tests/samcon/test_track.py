@@ -37,14 +37,18 @@ def test_debug_run_writes_its_run_directory(run: Path) -> None:
     log = (run / "progress.log").read_text()
     assert "walk: a search from frame 3 to 6 for the feedback regression" in log
     assert "walk segment 1/2" in log and "walk segment 2/2" in log
-    # The closed-loop gain search of the debug config: 2 generations, 2 groups of 6 features x 10 actuators.
+    # The closed-loop gain search of the debug config: 2 generations, 2 groups of 6 features x 10 actuators, and the
+    # offsets of 2 actuators in each of the 2 segments.
     opt = walk["optimise"]
-    assert opt["generation"] == [1, 2] and opt["parameters"] == 2 * 6 * 10 and opt["seconds"] > 0
+    assert opt["generation"] == [1, 2] and opt["parameters"] == 2 * 6 * 10 + 2 * 2 and opt["seconds"] > 0
     assert "walk: generation 2/2: cost best" in log
     import h5py
 
     with h5py.File(run / "samcon.h5") as f:
         assert f["clips/walk/ref_gain"].shape == (2, 28, 16) and float(f["clips/walk/ref_limit"][()]) == 0.5
+        ref_offset = f["clips/walk/ref_offset"][()]
+    assert ref_offset.shape == (2, 28) and np.count_nonzero(ref_offset[:, [14, 21]]) == 4  # right_hip_x, left_hip_x
+    assert np.count_nonzero(ref_offset) == 4
 
 
 def test_compare_trackers_reads_a_samcon_run(run: Path, tmp_path: Path) -> None:
@@ -201,13 +205,14 @@ def test_every_samcon_config_loads_and_names_real_features_and_actuators(path: P
     from samcon.optimise import reduced_indices
 
     cfg = load_config(SamconConfig, str(path), [])
-    features, actuators = reduced_indices(Humanoid(cfg.gym.physics), cfg.optimise)
+    features, actuators, offsets = reduced_indices(Humanoid(cfg.gym.physics), cfg.optimise)
     assert len(features) == len(cfg.optimise.features) and len(actuators) == len(cfg.optimise.actuators)
+    assert len(offsets) == len(cfg.optimise.offsets)
 
 
 def test_feedback_walk_config_is_the_default_but_for_its_experiment() -> None:
-    """A config file starts from the dataclass defaults, not from default.yaml: feedback-walk.yaml must repeat the
-    default's settings (a partial copy ran without the look-ahead and fell 40 times)."""
+    """feedback-walk.yaml names default.yaml as its base: it is the default but for its experiment's keys (a partial
+    copy without a base took the dataclass defaults, ran without the look-ahead and fell 40 times)."""
     from dataclasses import asdict
 
     from common.train.config import load_config
