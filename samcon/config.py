@@ -202,6 +202,17 @@ class FeedbackConfig:
             their paths there (a 512-frame search of walk passes each phase 6 or 7 times). One-shot clips: ``time``.
         refine_iterations: Re-runs of SAMCON sampling around the current policies, each followed by a refit.
         refine_sigma: Offset deviation (rad) of those re-runs.
+        visit_iterations: Rounds of searches from the states the policy itself reaches before it falls (the
+            data-aggregation idea of DAgger, Ross et al. 2011, and of Liu et al. 2016's guided learning, where the
+            policy's own rollouts decide where new samples come from): each round runs the current policy from
+            ``visit_episodes`` starts at segment starts of the clip's first cycle (loop clips) or tracked range under
+            the evaluator's failure rule; for every episode that fails, a search of ``start_segments`` segments (at
+            least 1) starts from its simulated state at the last segment start ``visit_lead`` frames or more before
+            the failure; the searches join the regression and, with ``anchor: nearest``, the anchors; then a refit.
+            Their time is counted with the feedback's, apart from the oracle's. 0: none.
+        visit_episodes: Episodes per round (start frames drawn with the run's seed, stratified over the range).
+        visit_frames: Steps per episode.
+        visit_lead: Frames before a failure the search starts at least (where the deviation begins, not the fall).
     """
 
     samples: int = 60
@@ -217,8 +228,15 @@ class FeedbackConfig:
     index: Literal["time", "phase"] = "time"
     refine_iterations: int = 0
     refine_sigma: float = 0.05
+    visit_iterations: int = 0
+    visit_episodes: int = 16
+    visit_frames: int = 300
+    visit_lead: int = 24
 
     def __post_init__(self) -> None:
+        if self.visit_iterations < 0 or self.visit_episodes < 1 or self.visit_frames < 1 or self.visit_lead < 0:
+            raise ValueError("feedback: need visit_iterations >= 0, visit_episodes >= 1, visit_frames >= 1 and "
+                             "visit_lead >= 0")  # fmt: skip
         if self.starts < 0 or self.start_segments < 0:
             raise ValueError(f"feedback: need starts >= 0 and start_segments >= 0, got {self.starts}, "
                              f"{self.start_segments}")

@@ -160,7 +160,8 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
            regression: Literal["cheapest", "per_state"] = "cheapest", fresh_share: float = 0.0,
            fresh_states: int = 1, fresh_noise: tuple[float, float] = (0.0, 0.0),
            rsi_lift: bool = False, progress: Progress | None = None, start_frame: int = 0,
-           end_frame: int | None = None, cost_limit: float = np.inf) -> Trajectory:  # fmt: skip
+           end_frame: int | None = None, cost_limit: float = np.inf,
+           start: np.ndarray | None = None) -> Trajectory:  # fmt: skip
     """Tracks the first ``frames`` control steps of clip ``clip`` from its start (see the module docstring).
 
     Args:
@@ -182,6 +183,8 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
             :func:`segment_bounds`, so that the segments are those of a search from frame 0) and track to frame
             ``end_frame``: the feedback regression's samples from states a search from the clip's start never visits.
         end_frame: The last frame tracked, a segment start of that grid or ``frames`` (None: ``frames``).
+        start: The full MuJoCo state (nstate,) to start from at ``start_frame`` instead of the reference's there
+            (e.g. one the feedback policy reached: the searches of ``feedback.visit_iterations``).
         cost_limit: Raise :class:`SearchAbandoned` as soon as the cheapest kept sample's cost summed along its
             parents exceeds this: costs are never negative, so a trajectory through the kept samples can only cost
             more (a later backtrack could in principle re-search the last segments cheaper; it is not waited for).
@@ -203,7 +206,7 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     fk = ForwardKinematics(humanoid, threads)
     # The start time as the gym reaches frame start_frame from 0 (previous time + dt), as reference_frames does.
     t_start = 0.0 if start_frame == 0 else (start_frame - 1) * library.dt + library.dt
-    start = start_state(library, humanoid, clip, rsi_lift, t_start)
+    start = start_state(library, humanoid, clip, rsi_lift, t_start) if start is None else np.array(start, dtype=float)
     nq, nv = humanoid.nq, humanoid.nv
     fresh = np.arange(n) >= n - int(round(fresh_share * n))
     n_fresh_states = max(1, fresh_states) if fresh_noise[0] > 0 or fresh_noise[1] > 0 else 1

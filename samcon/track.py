@@ -31,8 +31,9 @@ from common.character.humanoid import Humanoid
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
+from common.sim.gym import GymConfig, TrackingGym
 from common.train.config import ConfigError, atomic_output, load_config
-from common.train.evaluate import EvalResult, evaluate
+from common.train.evaluate import EvalConfig, EvalResult, evaluate
 from common.train.run import RunDir, RunDirError
 from samcon import store
 from samcon.config import FeedbackConfig, SamconConfig
@@ -130,6 +131,56 @@ def path_anchors(traj: Trajectory, extra: Sequence[Trajectory] = (),
     return features, offsets, np.maximum(pooled.std(axis=0), 1e-6)
 
 
+def visited_states(plan: ClipPlan, name: str, library: MotionLibrary, humanoid: Humanoid, grid: np.ndarray,
+                   span: int, segments: int, fb: FeedbackConfig, ev: EvalConfig, rng: np.random.Generator,
+                   threads: int = 1) -> tuple[list[tuple[int, np.ndarray]], float]:  # fmt: skip
+    """Where the policy of ``plan`` goes wrong: it plays ``fb.visit_episodes`` episodes from the reference at segment
+    starts of ``grid`` before frame ``span`` (stratified draws), under the evaluator's failure rule, for at most
+    ``fb.visit_frames`` steps within the grid; of each episode that fails at frame t, the simulated state at the last
+    segment start at or before ``t - fb.visit_lead`` (not before the episode's start) from which ``segments`` segments
+    remain on the grid.
+
+    Returns:
+        [(frame, full MuJoCo state (nstate,))] of the failed episodes, and the share of the episodes that failed.
+    """
+    clip = library.clip_index(name)
+    starts = grid[:-1][grid[:-1] < max(1, span)]
+    n = fb.visit_episodes
+    # Stratified over the start segments: one draw in each of n equal stretches of them.
+    first = starts[np.minimum(((np.arange(n) + rng.random(n)) * len(starts) / n).astype(np.int64), len(starts) - 1)]
+    gym = TrackingGym(GymConfig(num_envs=n, threads=threads, seed=ev.seed, physics=humanoid.physics,
+                                termination=ev.termination, rsi_lift=ev.rsi_lift), library, humanoid)  # fmt: skip
+    policy = FeedbackPolicy({name: plan}, library, humanoid)
+    on_grid = {int(f): i for i, f in enumerate(grid)}
+    states: list[dict[int, np.ndarray]] = [{} for _ in first]
+    failed = np.full(n, -1)
+    try:
+        result = gym.reset(clips=np.full(n, clip), times=first * library.dt)
+        for i in range(n):
+            states[i][int(first[i])] = gym.sim.state[i].copy()
+        alive = np.ones(n, dtype=bool)
+        steps = int(min(fb.visit_frames, grid[-1] - first.min()))
+        for step in range(1, steps + 1):
+            result = gym.step(policy(result), autoreset=False)
+            frame = first + step
+            newly = alive & result.terminated
+            failed[newly] = frame[newly]
+            alive &= ~result.terminated & (frame < grid[-1])
+            for i in np.flatnonzero(alive):
+                if int(frame[i]) in on_grid:
+                    states[i][int(frame[i])] = gym.sim.state[i].copy()
+            if not alive.any():
+                break
+    finally:
+        gym.close()
+    out = []
+    for i in np.flatnonzero(failed >= 0):
+        ok = [f for f in states[i] if f <= failed[i] - fb.visit_lead and on_grid[f] + segments <= len(grid) - 1]
+        if ok:
+            out.append((max(ok), states[i][max(ok)]))
+    return out, float(np.mean(failed >= 0))
+
+
 def _plan_bounds(traj: Trajectory, m: int) -> np.ndarray:
     """The segments a plan's policies index: the first cycle's with m > 0 policies per cycle, else all of them."""
     return traj.bounds[: m + 1] if m else traj.bounds
@@ -214,6 +265,21 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
             plan = _plan(traj, fb, [*extra, *guided], m)
         else:
             plan = ClipPlan(traj.targets, _plan_bounds(traj, m), *anchored(traj, fb, *fit_samples(again, fb, extra, m)))
+    for it in range(fb.visit_iterations):
+        segments = max(1, fb.start_segments)
+        visits, share = visited_states(plan, name, library, humanoid, grid, cycle or frames, segments, fb,
+                                       cfg.train.eval, rng, cfg.train.threads)  # fmt: skip
+        print(f"{name}: visit round {it + 1}/{fb.visit_iterations}: {share:.0%} of {fb.visit_episodes} episodes "
+              f"fell; searches from {len(visits)} of their states", file=log, flush=True)  # fmt: skip
+        for first, state in visits:
+            end = int(grid[int(np.searchsorted(grid, first)) + segments])
+            print(f"{name}: a search from the policy's state at frame {first} to {end}", file=log, flush=True)
+            path = samcon(humanoid, library, clip, frames, search, cfg.cost, rng, start_frame=first, end_frame=end,
+                          start=state, **common)  # fmt: skip
+            extra.append(path)
+            feedback_seconds += path.seconds
+            feedback_samples += path.samples
+        plan = _plan(traj, fb, [*extra, *guided], m)
     # The oracle's minutes are the open-loop search's; the feedback's extra searches are counted apart.
     traj.feedback_seconds, traj.feedback_samples = feedback_seconds, feedback_samples
     if cfg.optimise.generations:

@@ -37,6 +37,7 @@ def test_debug_run_writes_its_run_directory(run: Path) -> None:
     log = (run / "progress.log").read_text()
     assert "walk: a search from frame 3 to 6 for the feedback regression" in log
     assert "walk segment 1/2" in log and "walk segment 2/2" in log
+    assert "walk: visit round 1/1: 0% of 2 episodes fell; searches from 0 of their states" in log
     # The closed-loop gain search of the debug config: 2 generations, 2 groups of 6 features x 10 actuators, and the
     # offsets of 2 actuators in each of the 2 segments.
     opt = walk["optimise"]
@@ -81,6 +82,9 @@ def test_a_clips_search_does_not_depend_on_the_clips_before_it(run: Path, tmp_pa
     [
         (["--set", "search.sampels=3"], "unknown key 'search.sampels'"),
         (["--motions", "nosuchclip"], "nosuchclip: no such motion file"),
+        (["--set", "feedback.visit_lead=-1"], "visit_lead >= 0"),
+        (["--set", "optimise.offsets=[knee]"], "optimise.offsets: no actuator 'knee'"),
+        (["--set", "optimise.offset_sigma=0"], "offset_sigma > 0"),
     ],
 )
 def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_path: Path,
@@ -226,3 +230,58 @@ def test_feedback_walk_config_is_the_default_but_for_its_experiment() -> None:
                        ("feedback", "starts"), ("feedback", "start_segments"), ("feedback", "index"),
                        ("feedback", "refine_iterations")}  # fmt: skip
     assert walk["train"]["eval"] == {**default["train"]["eval"], "starts_per_clip": 16}
+
+
+def test_visited_states_are_where_the_policy_was_before_it_fell() -> None:
+    """The reference's own angles (a plan with no offsets) fall on walk within 120 frames: every episode's state at
+    the last segment start at least visit_lead frames before its failure is returned, and it is the gym's state
+    there (re-simulated step by step); a search started from it starts there and replays bit-exactly."""
+    from common.character.humanoid import Humanoid
+    from common.motion.dataset import load_motions
+    from common.sim.gym import GymConfig, TrackingGym
+    from common.train.evaluate import EvalConfig
+    from samcon.config import CostConfig, FeedbackConfig, SearchConfig
+    from samcon.cost import FEATURE_NAMES
+    from samcon.feedback import ClipPlan, FeedbackPolicy
+    from samcon.search import replay, samcon
+    from samcon.track import visited_states
+
+    humanoid = Humanoid()
+    library = load_motions(["walk"], humanoid)
+    grid = np.arange(0, 181, 6)
+    d = len(FEATURE_NAMES)
+    plan = ClipPlan(np.zeros((180, humanoid.nu)), grid, np.zeros((30, humanoid.nu, d)), np.zeros((30, humanoid.nu)))
+    fb = FeedbackConfig(visit_episodes=2, visit_frames=170, visit_lead=12)
+    ev = EvalConfig(threads=1)
+    # Two episodes over two start segments: one from frame 0, one from frame 6.
+    visits, share = visited_states(plan, "walk", library, humanoid, grid, 12, 1, fb, ev, np.random.default_rng(0))
+    assert share == 1.0 and len(visits) == 2
+    # Re-simulated: each episode to its failure, and its states on the grid.
+    gym = TrackingGym(GymConfig(num_envs=2, threads=1, seed=ev.seed, physics=humanoid.physics,
+                                termination=ev.termination), library, humanoid)  # fmt: skip
+    policy = FeedbackPolicy({"walk": plan}, library, humanoid)
+    result = gym.reset(clips=np.zeros(2, dtype=np.int64), times=np.array([0.0, 6.0]) * library.dt)
+    seen, fail = [{0: gym.sim.state[0].copy()}, {6: gym.sim.state[1].copy()}], [None, None]
+    for step in range(1, 171):
+        result = gym.step(policy(result), autoreset=False)
+        for i, first in enumerate((0, 6)):
+            if fail[i] is None:
+                seen[i][first + step] = gym.sim.state[i].copy()
+                fail[i] = first + step if result.terminated[i] else None
+    gym.close()
+    assert None not in fail
+    owners = set()
+    for frame, state in visits:
+        # The episode whose state it is: the last segment start at least 12 frames before that episode's failure.
+        match = [j for j in (0, 1) if frame % 6 == 0 and frame <= fail[j] - 12 < frame + 6
+                 and frame in seen[j] and np.array_equal(state, seen[j][frame])]  # fmt: skip
+        assert len(match) >= 1
+        owners.update(match)
+    assert owners == {0, 1}
+    frame, state = visits[0]
+    search = SearchConfig(segment_frames=6, samples=6, iterations=1, keep=2, elite=2)
+    path = samcon(humanoid, library, 0, 180, search, CostConfig(), np.random.default_rng(1), start_frame=frame,
+                  end_frame=frame + 6, start=state)  # fmt: skip
+    np.testing.assert_array_equal(path.start_state, state)
+    np.testing.assert_array_equal(replay(humanoid, state, path.targets)[-1], path.end_states[-1])
+    assert np.abs(path.features[0]).max() > 0.05  # the policy's state, not the reference's (features 0 there)
