@@ -36,7 +36,10 @@ def main() -> None:
     with h5py.File(args.run / store.FILE_NAME, "r") as f:
         for name, g in f["clips"].items():
             library = load_motions([name], humanoid)
-            bounds, terms = g["bounds"][()], {k: g[f"terms/{k}"][()] for k in (*COST_TERMS, "fallen")}
+            # Files written before a term existed lack it: shown as 0.
+            terms = {k: g[f"terms/{k}"][()] if f"terms/{k}" in g else np.zeros(len(g["bounds"]) - 1)
+                     for k in (*COST_TERMS, "fallen")}  # fmt: skip
+            bounds = g["bounds"][()]
             fell = np.flatnonzero(terms["fallen"] > 0)
             last = int(fell[0]) if len(fell) else len(bounds) - 2
             span = f"frames {bounds[last]}-{bounds[last + 1]}"

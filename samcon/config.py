@@ -146,6 +146,8 @@ class CostConfig:
         end_effector: Mean squared root-relative hand and foot position error (m^2).
         balance: Squared horizontal error of the centre of mass relative to the feet (m^2): Liu et al.'s balance.
         root_vel: Squared root velocity error ((m/s)^2): the state the next segment starts from.
+        body_pos: Mean over all bodies of the squared world position error (m^2): the judge's own measure (MPJPE-g
+            is its root), which the terms above only approximate. 0: off.
         fall_head_error: Head height error (m) that counts as a fall (the evaluator's rule).
         fall_penalty: Cost added per frame fallen, large enough that a fallen sample is never kept while one stands.
     """
@@ -156,6 +158,7 @@ class CostConfig:
     end_effector: float = 100.0
     balance: float = 100.0
     root_vel: float = 1.0
+    body_pos: float = 0.0
     fall_head_error: float = 0.25
     fall_penalty: float = 1000.0
 

@@ -13,7 +13,7 @@ from common.character.state import CharacterState
 from common.maths.rotations import quat_geodesic_angle, quat_rotate_inv, quat_split_heading, quat_to_rotvec
 from samcon.config import CostConfig
 
-COST_TERMS = ("pose", "root_pos", "root_rot", "end_effector", "balance", "root_vel")
+COST_TERMS = ("pose", "root_pos", "root_rot", "end_effector", "balance", "root_vel", "body_pos")
 FEATURE_NAMES = (
     ("root_height",)
     + tuple(f"root_tilt_{a}" for a in "xyz")
@@ -60,6 +60,7 @@ def tracking_cost(
         "end_effector": np.mean(np.sum((sim_rel[:, ee] - ref_rel[:, ee]) ** 2, axis=-1), axis=-1),
         "balance": np.sum((sim_com[:, :2] - ref_com[:, :2]) ** 2, axis=-1),
         "root_vel": np.sum((sim.body_linvel[:, r] - ref.body_linvel[:, r]) ** 2, axis=-1),
+        "body_pos": np.mean(np.sum((sim.body_pos - ref.body_pos) ** 2, axis=-1), axis=-1),
     }
     cost = sum(getattr(config, name) * terms[name] for name in COST_TERMS)
     h = humanoid.head_index

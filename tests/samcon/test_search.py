@@ -30,11 +30,19 @@ def test_cost_of_a_shifted_character_is_its_root_term(walk) -> None:
     sim = ref[np.array([0])]
     sim.body_pos = ref.body_pos + np.array([0.1, 0.0, 0.0])  # every body 10 cm along x
     cost, terms = tracking_cost(humanoid, CostConfig(), sim, ref)
-    # Only the root position differs (0.1^2 m^2, weight 100); relative, balance and pose terms are 0.
+    # Only the root position differs (0.1^2 m^2, weight 100); relative, balance and pose terms are 0. Every body's
+    # world error is 0.1 m too (the body_pos term, off by default).
     np.testing.assert_allclose(terms["root_pos"], [0.01])
+    np.testing.assert_allclose(terms["body_pos"], [0.01])
     for name in ("pose", "root_rot", "end_effector", "balance", "root_vel"):
         np.testing.assert_allclose(terms[name], [0.0], atol=1e-12)
     np.testing.assert_allclose(cost, [1.0])
+    np.testing.assert_allclose(tracking_cost(humanoid, CostConfig(body_pos=50.0), sim, ref)[0], [1.5])
+    # One body 0.3 m off alone: the mean over the 15 bodies of its squared error.
+    one = ref[np.array([0])]
+    one.body_pos = ref.body_pos.copy()
+    one.body_pos[:, 5, 1] += 0.3
+    np.testing.assert_allclose(tracking_cost(humanoid, CostConfig(), one, ref)[1]["body_pos"], [0.09 / 15])
     np.testing.assert_allclose(feedback_features(humanoid, sim, ref), 0.0, atol=1e-12)
     sim.body_pos[:, humanoid.head_index, 2] -= 0.3  # the head 30 cm low: a fall by the evaluator's rule
     cost, terms = tracking_cost(humanoid, CostConfig(), sim, ref)
