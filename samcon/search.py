@@ -76,6 +76,8 @@ class Trajectory:
         sigma: The ``sigma_init`` of the search (rad).
         optimise: With ``optimise.generations`` > 0, the closed-loop gain search's summary and learning curve
             (:func:`samcon.optimise.optimise_gains`) and its ``seconds``.
+        visits: With ``feedback.visit_iterations`` > 0, per round: the share of its episodes that fell before the
+            round's searches, and how many searches it ran.
     """
 
     clip: str
@@ -97,6 +99,7 @@ class Trajectory:
     feedback_samples: int = 0
     sigma: float = 0.0
     optimise: dict[str, Any] | None = None
+    visits: list[dict[str, Any]] | None = None
 
     @property
     def frames(self) -> int:

@@ -265,6 +265,7 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
             plan = _plan(traj, fb, [*extra, *guided], m)
         else:
             plan = ClipPlan(traj.targets, _plan_bounds(traj, m), *anchored(traj, fb, *fit_samples(again, fb, extra, m)))
+    visit_rounds = []
     for it in range(fb.visit_iterations):
         segments = max(1, fb.start_segments)
         visits, share = visited_states(plan, name, library, humanoid, grid, cycle or frames, segments, fb,
@@ -280,8 +281,10 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
             feedback_seconds += path.seconds
             feedback_samples += path.samples
         plan = _plan(traj, fb, [*extra, *guided], m)
+        visit_rounds.append({"round": it + 1, "fell": share, "searches": len(visits)})
     # The oracle's minutes are the open-loop search's; the feedback's extra searches are counted apart.
     traj.feedback_seconds, traj.feedback_samples = feedback_seconds, feedback_samples
+    traj.visits = visit_rounds or None
     if cfg.optimise.generations:
         t0 = time.perf_counter()
         plan, history = optimise_gains(plan, name, library, humanoid, cfg.optimise, cfg.train.eval, rng,
@@ -314,6 +317,8 @@ def _clip_rows(library: MotionLibrary, results: list[tuple[Trajectory, ClipPlan]
         }  # fmt: skip
         if traj.optimise is not None:
             rows[traj.clip]["optimise"] = traj.optimise
+        if traj.visits is not None:
+            rows[traj.clip]["visits"] = traj.visits
     return rows
 
 

@@ -38,6 +38,7 @@ def test_debug_run_writes_its_run_directory(run: Path) -> None:
     assert "walk: a search from frame 3 to 6 for the feedback regression" in log
     assert "walk segment 1/2" in log and "walk segment 2/2" in log
     assert "walk: visit round 1/1: 0% of 2 episodes fell; searches from 0 of their states" in log
+    assert walk["visits"] == [{"round": 1, "fell": 0.0, "searches": 0}]
     # The closed-loop gain search of the debug config: 2 generations, 2 groups of 6 features x 10 actuators, and the
     # offsets of 2 actuators in each of the 2 segments.
     opt = walk["optimise"]
