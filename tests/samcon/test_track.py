@@ -286,3 +286,17 @@ def test_visited_states_are_where_the_policy_was_before_it_fell() -> None:
     np.testing.assert_array_equal(path.start_state, state)
     np.testing.assert_array_equal(replay(humanoid, state, path.targets)[-1], path.end_states[-1])
     assert np.abs(path.features[0]).max() > 0.05  # the policy's state, not the reference's (features 0 there)
+
+
+def test_oracle_config_is_the_default_but_for_its_search_cost_and_polish() -> None:
+    from dataclasses import asdict
+
+    from common.train.config import load_config
+    from samcon.config import SamconConfig
+
+    default = asdict(load_config(SamconConfig, str(ROOT / "configs/samcon/default.yaml"), []))
+    oracle = asdict(load_config(SamconConfig, str(ROOT / "configs/samcon/oracle.yaml"), []))
+    changed = {(sec, k) for sec in default for k in default[sec] if default[sec][k] != oracle[sec][k]}
+    assert changed == {("search", "iterations"), ("search", "sigma_choices"), ("cost", "body_pos"),
+                       ("feedback", "refine_iterations")}  # fmt: skip
+    assert oracle["search"]["iterations"] == 4 and oracle["cost"]["body_pos"] == 100.0
