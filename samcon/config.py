@@ -316,6 +316,60 @@ class OptimiseConfig:
 
 
 @dataclass(frozen=True)
+class LqrConfig:
+    """Time-varying LQR around the searched path (:mod:`samcon.lqr`, session 18): the feedback policy judged under
+    the evaluator's protocol becomes ``u*_t + clip(K_t dx)`` from the full state's deviation ``dx``, in place of the
+    regressed per-segment policy (which is still fitted, stored and used for clips without paths).
+
+    Attributes:
+        enabled: Use it.
+        eps: Step of MuJoCo's centred finite differences (``mjd_transitionFD``). Measured on walk, 19 starts:
+            1e-6 0.63 survival, 1e-4 0.16, 1e-3 0.42: wider steps straddle contact changes.
+        root_pos, root_height, root_rot, hinge, root_vel, root_ang_vel, hinge_vel: The diagonal of the state cost Q
+            per tangent coordinate (m, rad, m/s, rad/s; 0: free): horizontal root position, its height, root
+            rotation, hinge angles and their velocities.
+        control: R = control * I (per rad of target correction).
+        limit: The largest correction per actuator (rad); beyond it it is clipped.
+        visit_rounds: Rounds of recovery paths (LQR-trees): episodes of the policy from random frames of the first
+            cycle; from each that falls, a SAMCON search from its state ``visit_lead`` frames or more before the fall
+            over ``visit_segments`` segments joins the paths with its own LQR (0: the main path alone).
+        visit_episodes: Episodes per round (``visit_frames`` steps each at most).
+        visit_frames: Steps per visit episode.
+        visit_lead: Frames before the fall the search starts at (at a segment start).
+        visit_segments: Segments each recovery search covers.
+    """
+
+    enabled: bool = False
+    eps: float = 1e-6
+    root_pos: float = 0.0
+    root_height: float = 0.0
+    root_rot: float = 25.0
+    hinge: float = 10.0
+    root_vel: float = 1.0
+    root_ang_vel: float = 0.1
+    hinge_vel: float = 0.01
+    control: float = 10.0
+    limit: float = 0.5
+    visit_rounds: int = 0
+    visit_episodes: int = 24
+    visit_frames: int = 512
+    visit_lead: int = 36
+    visit_segments: int = 8
+
+    def __post_init__(self) -> None:
+        weights = (self.root_pos, self.root_height, self.root_rot, self.hinge, self.root_vel, self.root_ang_vel,
+                   self.hinge_vel)  # fmt: skip
+        if min(weights) < 0:
+            raise ValueError("lqr: the state weights must be >= 0")
+        if not (self.eps > 0 and self.control > 0 and self.limit > 0):
+            raise ValueError("lqr: need eps, control and limit > 0")
+        if self.visit_rounds < 0 or min(self.visit_episodes, self.visit_frames, self.visit_segments) < 1:
+            raise ValueError("lqr: need visit_rounds >= 0 and visit_episodes, visit_frames, visit_segments >= 1")
+        if self.visit_lead < 0:
+            raise ValueError(f"lqr.visit_lead must be >= 0, got {self.visit_lead}")
+
+
+@dataclass(frozen=True)
 class SamconConfig:
     """Everything ``track-samcon`` reads."""
 
@@ -325,6 +379,7 @@ class SamconConfig:
     cost: CostConfig = field(default_factory=CostConfig)
     feedback: FeedbackConfig = field(default_factory=FeedbackConfig)
     optimise: OptimiseConfig = field(default_factory=OptimiseConfig)
+    lqr: LqrConfig = field(default_factory=LqrConfig)
 
     def __post_init__(self) -> None:
         if self.feedback.index == "phase" and not self.search.align_cycle:

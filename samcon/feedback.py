@@ -9,6 +9,7 @@ centred S and A, ``b = mean(a) - M mean(s)``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,6 +18,9 @@ from common.motion.library import MotionLibrary
 from common.sim.gym import StepResult
 from common.train.evaluate import Policy
 from samcon.cost import feedback_features
+
+if TYPE_CHECKING:
+    from samcon.lqr import LqrPath
 
 
 def fit_linear(features: np.ndarray, actions: np.ndarray, ridge: float) -> tuple[np.ndarray, np.ndarray]:
@@ -64,6 +68,9 @@ class ClipPlan:
         ref_limit: The largest correction per actuator (rad); beyond it it is clipped.
         ref_offset: Open-loop offsets optimised in closed loop (``optimise.offsets``), added to segment k's offset
             (not clipped). Shape: (S, nu). None: none.
+        lqr: With ``lqr.enabled``, the time-varying LQR paths (:mod:`samcon.lqr`), the one from the clip's start
+            first: the evaluator's policy of the clip is then theirs. None: the policies above.
+        lqr_limit: Their largest correction per actuator (rad).
     """
 
     targets: np.ndarray
@@ -76,6 +83,8 @@ class ClipPlan:
     ref_gain: np.ndarray | None = None
     ref_limit: float = np.inf
     ref_offset: np.ndarray | None = None
+    lqr: list[LqrPath] | None = None
+    lqr_limit: float = np.inf
 
     def group(self, k: int, groups: int) -> int:
         """The group of segment ``k`` when the plan's segments are split evenly into ``groups``."""

@@ -76,6 +76,7 @@ class Trajectory:
         sigma: The ``sigma_init`` of the search (rad).
         optimise: With ``optimise.generations`` > 0, the closed-loop gain search's summary and learning curve
             (:func:`samcon.optimise.optimise_gains`) and its ``seconds``.
+        lqr: With ``lqr.enabled``, the LQR paths' summary (:func:`samcon.lqr.grow_paths`).
         visits: With ``feedback.visit_iterations`` > 0, per round: the share of its episodes that fell before the
             round's searches, and how many searches it ran.
     """
@@ -100,6 +101,7 @@ class Trajectory:
     sigma: float = 0.0
     optimise: dict[str, Any] | None = None
     visits: list[dict[str, Any]] | None = None
+    lqr: dict[str, Any] | None = None
 
     @property
     def frames(self) -> int:

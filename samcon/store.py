@@ -7,7 +7,9 @@ group ``clips/<name>`` with datasets ``targets`` (F, nu), ``offsets`` (S, nu), `
 ``anchor_offsets`` (S, P, nu) and ``feature_scale`` (D,), with ``optimise.generations`` > 0 ``ref_gain`` (G, nu, D)
 and ``ref_limit`` (), with ``optimise.offsets`` also ``ref_offset`` (S, nu) (see :class:`samcon.feedback.ClipPlan`),
 with ``feedback.index: phase`` also ``plan_bounds`` (the first cycle's segments, which gain, bias and anchors index),
-and attributes ``samples``, ``seconds``. Written to a temporary file and renamed.
+with ``lqr.enabled`` a group ``lqr`` (attribute ``limit``) of groups ``0``, ``1``, ... (the path from the clip's start
+first; attribute ``first``) with ``targets``, ``qpos``, ``qvel``, ``gain`` and ``cost_to_go`` (see
+:class:`samcon.lqr.LqrPath`), and attributes ``samples``, ``seconds``. Written to a temporary file and renamed.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 
 from samcon.cost import FEATURE_NAMES
 from samcon.feedback import ClipPlan
+from samcon.lqr import LqrPath
 from samcon.search import Trajectory
 
 FORMAT = "mimictrack.samcon"
@@ -27,6 +30,7 @@ VERSION = 1
 FILE_NAME = "samcon.h5"
 
 
+_LQR = ("targets", "qpos", "qvel", "gain", "cost_to_go")
 _OPTIONAL = ("anchor_features", "anchor_offsets", "feature_scale", "ref_gain", "ref_limit", "ref_offset")
 
 
@@ -49,6 +53,14 @@ def save(path: str | Path, control_hz: float, results: list[tuple[Trajectory, Cl
                 for name in ("gain", "bias", *_OPTIONAL):
                     if getattr(plan, name) is not None and (name != "ref_limit" or plan.ref_gain is not None):
                         g.create_dataset(name, data=getattr(plan, name))
+                if plan.lqr:
+                    lqr = g.create_group("lqr")
+                    lqr.attrs["limit"] = plan.lqr_limit
+                    for j, lqr_path in enumerate(plan.lqr):
+                        p = lqr.create_group(str(j))
+                        p.attrs["first"] = lqr_path.first
+                        for name in _LQR:
+                            p.create_dataset(name, data=getattr(lqr_path, name))
                 g.attrs.update(samples=traj.samples, seconds=traj.seconds, backtracks=traj.backtracks)
         os.replace(tmp, path)
     finally:
@@ -80,6 +92,11 @@ def load_plans(path: str | Path, control_hz: float) -> tuple[dict[str, ClipPlan]
             if "ref_limit" in anchors:
                 anchors["ref_limit"] = float(anchors["ref_limit"])
             bounds = g["plan_bounds"][()] if "plan_bounds" in g else g["bounds"][()]
+            if "lqr" in g:
+                lqr = g["lqr"]
+                anchors["lqr"] = [LqrPath(int(lqr[j].attrs["first"]), *(lqr[j][k][()] for k in _LQR))
+                                  for j in sorted(lqr, key=int)]  # fmt: skip
+                anchors["lqr_limit"] = float(lqr.attrs["limit"])
             plans[name] = ClipPlan(targets=g["targets"][()], bounds=bounds, gain=g["gain"][()],
                                    bias=g["bias"][()], **anchors)  # fmt: skip
             info[name] = {"samples": int(g.attrs["samples"]), "seconds": float(g.attrs["seconds"])}

@@ -39,6 +39,7 @@ from samcon import store
 from samcon.config import FeedbackConfig, SamconConfig
 from samcon.cost import COST_TERMS
 from samcon.feedback import ClipPlan, FeedbackPolicy, fit_linear, open_loop_policy
+from samcon.lqr import evaluation_policy, grow_paths
 from samcon.optimise import optimise_gains, plot_history, reduced_indices
 from samcon.search import SearchAbandoned, Trajectory, cycle_frames, horizon, samcon
 
@@ -290,6 +291,17 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
         plan, history = optimise_gains(plan, name, library, humanoid, cfg.optimise, cfg.train.eval, rng,
                                        threads=cfg.train.threads, log=log)  # fmt: skip
         traj.optimise = {"seconds": time.perf_counter() - t0, **history}
+    if cfg.lqr.enabled:
+
+        def recovery(first: int, end: int, state: np.ndarray) -> Trajectory:
+            print(f"{name}: a recovery search from the LQR policy's state at frame {first} to {end}", file=log,
+                  flush=True)  # fmt: skip
+            return samcon(humanoid, library, clip, frames, search, cfg.cost, rng, start_frame=first, end_frame=end,
+                          start=state, **common)  # fmt: skip
+
+        plan.lqr, traj.lqr = grow_paths(traj, library, humanoid, cfg.lqr, cfg.train.eval, recovery, rng, log)
+        plan.lqr_limit = cfg.lqr.limit
+        print(f"{name}: LQR on {len(plan.lqr)} paths in {traj.lqr['seconds']:.0f} s", file=log, flush=True)
     return traj, plan
 
 
@@ -319,6 +331,8 @@ def _clip_rows(library: MotionLibrary, results: list[tuple[Trajectory, ClipPlan]
             rows[traj.clip]["optimise"] = traj.optimise
         if traj.visits is not None:
             rows[traj.clip]["visits"] = traj.visits
+        if traj.lqr is not None:
+            rows[traj.clip]["lqr"] = traj.lqr
     return rows
 
 
@@ -371,9 +385,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         ev = cfg.train.eval
         open_loop = evaluate(open_loop_policy(plans, library, humanoid), library, humanoid,
                              replace(ev, starts_per_clip=1, max_frames=cfg.train.max_frames))  # fmt: skip
-        feedback = evaluate(FeedbackPolicy(plans, library, humanoid), library, humanoid, ev)
+        feedback = evaluate(evaluation_policy(plans, library, humanoid), library, humanoid, ev)
         print(f"open loop from each clip's start:\n{open_loop.table()}", file=log, flush=True)
-        print(f"linear feedback ({ev.starts_per_clip} starts per clip):\n{feedback.table()}", file=log, flush=True)
+        kind = "LQR (clips with paths) and linear" if cfg.lqr.enabled else "linear"
+        print(f"{kind} feedback ({ev.starts_per_clip} starts per clip):\n{feedback.table()}", file=log, flush=True)
+        regressed = None
+        if cfg.lqr.enabled:
+            # The same searches' regressed per-segment policies: what the LQR replaces.
+            regressed = evaluate(FeedbackPolicy(plans, library, humanoid), library, humanoid, ev)
+            print(f"the regressed linear feedback alone:\n{regressed.table()}", file=log, flush=True)
         path_only = None
         if cfg.feedback.anchor == "nearest":
             # The same searches and gains anchored on the path from frame 0 alone: what the other paths add.
@@ -384,6 +404,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     samples = int(sum(traj.samples for traj, _ in results))
     out = {"clips": _clip_rows(library, results, open_loop, feedback, cfg), "seconds": seconds, "samples": samples,
            "open_loop_overall": open_loop.overall, "feedback_overall": feedback.overall}  # fmt: skip
+    if regressed is not None:
+        out["feedback_regressed_overall"] = regressed.overall
+        for c, name in enumerate(library.names):
+            keys = ("mpjpe_g", "mpjpe_l", "survival", "success")
+            out["clips"][name]["feedback_regressed"] = {k: float(regressed.per_clip[k][c]) for k in keys}
     if path_only is not None:
         out["feedback_path_anchor_overall"] = path_only.overall
         for c, name in enumerate(library.names):
