@@ -112,7 +112,7 @@ def test_nearest_anchor_run_stores_every_searched_path(tmp_path: Path) -> None:
     they make."""
     import h5py
 
-    plain = ["--set", "feedback.refine_iterations=0"]
+    plain = ["--set", "feedback.refine_iterations=0", "--set", "lqr.enabled=false"]  # the regressed policy judged
     path_run, out = tmp_path / "path", tmp_path / "nearest"
     main(["--config", DEBUG, "--out", str(path_run), *plain])
     main(["--config", DEBUG, "--out", str(out), *plain, "--set", "feedback.anchor=nearest"])
@@ -229,7 +229,7 @@ def test_feedback_walk_config_is_the_default_but_for_its_experiment() -> None:
     changed = {(sec, k) for sec in sections for k in default[sec] if default[sec][k] != walk[sec][k]}
     assert changed == {("train", "eval"), ("search", "sigma_init"), ("search", "align_cycle"), ("feedback", "anchor"),
                        ("feedback", "starts"), ("feedback", "start_segments"), ("feedback", "index"),
-                       ("feedback", "refine_iterations")}  # fmt: skip
+                       ("feedback", "refine_iterations"), ("lqr", "enabled")}  # fmt: skip
     assert walk["train"]["eval"] == {**default["train"]["eval"], "starts_per_clip": 16}
 
 
