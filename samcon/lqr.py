@@ -134,7 +134,8 @@ class LqrPath:
         qpos: The path's coordinates at each of its frames. Shape: (n, nq).
         qvel: Its velocities. Shape: (n, nv).
         gain: K_t, stored as float32. Shape: (n, nu, 2 nv).
-        cost_to_go: P_t, stored as float32. Shape: (n, 2 nv, 2 nv).
+        cost_to_go: P_t, stored as float32. Shape: (n, 2 nv, 2 nv). None for a clip's only path (nothing to choose
+            between; ``samcon.h5`` then leaves its 9.5 MB per 512 frames out).
     """
 
     first: int
@@ -142,7 +143,7 @@ class LqrPath:
     qpos: np.ndarray
     qvel: np.ndarray
     gain: np.ndarray
-    cost_to_go: np.ndarray
+    cost_to_go: np.ndarray | None
 
     @property
     def end(self) -> int:
@@ -212,7 +213,7 @@ class LqrPolicy:
             k = frame - path.first
             mujoco.mj_differentiatePos(m, self._dq, 1.0, path.qpos[k], qpos)
             dx = np.concatenate([self._dq, qvel - path.qvel[k]])
-            v = float(dx @ path.cost_to_go[k].astype(np.float64) @ dx)
+            v = 0.0 if path.cost_to_go is None else float(dx @ path.cost_to_go[k].astype(np.float64) @ dx)
             if best is None or v < best[0]:
                 best = (v, j, dx)
         v, j, dx = best

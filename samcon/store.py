@@ -8,8 +8,8 @@ group ``clips/<name>`` with datasets ``targets`` (F, nu), ``offsets`` (S, nu), `
 and ``ref_limit`` (), with ``optimise.offsets`` also ``ref_offset`` (S, nu) (see :class:`samcon.feedback.ClipPlan`),
 with ``feedback.index: phase`` also ``plan_bounds`` (the first cycle's segments, which gain, bias and anchors index),
 with ``lqr.enabled`` a group ``lqr`` (attribute ``limit``) of groups ``0``, ``1``, ... (the path from the clip's start
-first; attribute ``first``) with ``targets``, ``qpos``, ``qvel``, ``gain`` and ``cost_to_go`` (see
-:class:`samcon.lqr.LqrPath`), and attributes ``samples``, ``seconds``. Written to a temporary file and renamed.
+first; attribute ``first``) with ``targets``, ``qpos``, ``qvel``, ``gain`` and, where a clip has several paths,
+``cost_to_go`` (see :class:`samcon.lqr.LqrPath`), and attributes ``samples``, ``seconds``. Written to a temporary file and renamed.
 """
 
 from __future__ import annotations
@@ -60,7 +60,9 @@ def save(path: str | Path, control_hz: float, results: list[tuple[Trajectory, Cl
                         p = lqr.create_group(str(j))
                         p.attrs["first"] = lqr_path.first
                         for name in _LQR:
-                            p.create_dataset(name, data=getattr(lqr_path, name))
+                            # A clip's only path needs no cost-to-go (nothing to choose between): left out.
+                            if name != "cost_to_go" or len(plan.lqr) > 1:
+                                p.create_dataset(name, data=getattr(lqr_path, name))
                 g.attrs.update(samples=traj.samples, seconds=traj.seconds, backtracks=traj.backtracks)
         os.replace(tmp, path)
     finally:
@@ -94,7 +96,8 @@ def load_plans(path: str | Path, control_hz: float) -> tuple[dict[str, ClipPlan]
             bounds = g["plan_bounds"][()] if "plan_bounds" in g else g["bounds"][()]
             if "lqr" in g:
                 lqr = g["lqr"]
-                anchors["lqr"] = [LqrPath(int(lqr[j].attrs["first"]), *(lqr[j][k][()] for k in _LQR))
+                anchors["lqr"] = [LqrPath(int(lqr[j].attrs["first"]), *(lqr[j][k][()] if k in lqr[j] else None
+                                                                         for k in _LQR))
                                   for j in sorted(lqr, key=int)]  # fmt: skip
                 anchors["lqr_limit"] = float(lqr.attrs["limit"])
             plans[name] = ClipPlan(targets=g["targets"][()], bounds=bounds, gain=g["gain"][()],

@@ -168,6 +168,8 @@ def test_lqr_run_stores_its_paths_and_the_report_judges_them(tmp_path: Path) -> 
     main_path = plan.lqr[0]
     assert np.array_equal(main_path.targets, plan.targets) and main_path.gain.dtype == np.float32
     assert main_path.gain.shape == (6, humanoid.nu, 2 * humanoid.model.nv)
+    # In 6 frames nothing falls: one path, whose cost-to-go (needed only to choose between paths) is left out.
+    assert len(plan.lqr) == 1 and main_path.cost_to_go is None
     results = json.loads((out / "results.json").read_text())
     row = results["clips"]["walk"]
     assert row["lqr"]["paths"] == len(plan.lqr) and len(row["lqr"]["visits"]) == 1
