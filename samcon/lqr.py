@@ -30,7 +30,7 @@ set (LQR-trees' growth; Liu et al. 2016's guided learning aggregates searched st
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -285,9 +285,11 @@ def visit_falls(policy: LqrPolicy, name: str, library: MotionLibrary, humanoid: 
 
 def grow_paths(traj: Trajectory, library: MotionLibrary, humanoid: Humanoid, cfg: LqrConfig, ev: EvalConfig,
                searcher: Callable[[int, int, np.ndarray], Trajectory], rng: np.random.Generator,
-               log: Any = None) -> tuple[list[LqrPath], dict[str, Any]]:  # fmt: skip
-    """The LQR of the path ``traj`` (from the clip's start) and, with ``cfg.visit_rounds``, of recovery paths that
-    ``searcher(first, end, state)`` searches from states where the policy falls (see the module docstring).
+               log: Any = None, extra: Sequence[Trajectory] = ()) -> tuple[list[LqrPath], dict[str, Any]]:  # fmt: skip
+    """The LQR of the path ``traj`` (from the clip's start), of the ``extra`` searches that started later on the
+    reference (``feedback.starts``; those whose kept path fell are left out) and, with ``cfg.visit_rounds``, of
+    recovery paths that ``searcher(first, end, state)`` searches from states where the policy falls (see the module
+    docstring). A path that ends before the main one ends on the main path's cost-to-go there.
 
     Returns:
         The paths (the main one first) and a summary: seconds, per round the share of visit episodes that fell and
@@ -296,6 +298,14 @@ def grow_paths(traj: Trajectory, library: MotionLibrary, humanoid: Humanoid, cfg
     t0 = time.perf_counter()
     main = stabilise(humanoid, traj.start_state, traj.targets, int(traj.bounds[0]), cfg)
     paths = [main]
+
+    def ending(end: int) -> np.ndarray | None:
+        return main.cost_to_go[end - main.first].astype(np.float64) if end < main.end else None
+
+    for path in extra:
+        if path.segment_terms["fallen"].sum() == 0:
+            first = int(path.bounds[0])
+            paths.append(stabilise(humanoid, path.start_state, path.targets, first, cfg, ending(int(path.bounds[-1]))))
     rounds = []
     for r in range(cfg.visit_rounds):
         policy = LqrPolicy({traj.clip: paths}, {traj.clip: cfg.limit}, library, humanoid,
@@ -307,8 +317,7 @@ def grow_paths(traj: Trajectory, library: MotionLibrary, humanoid: Humanoid, cfg
             path = searcher(first, end, state)
             if path.segment_terms["fallen"].sum() > 0:
                 continue
-            p_end = main.cost_to_go[end - main.first].astype(np.float64) if end < main.end else None
-            paths.append(stabilise(humanoid, state, path.targets, first, cfg, p_end))
+            paths.append(stabilise(humanoid, state, path.targets, first, cfg, ending(end)))
             kept += 1
         rounds.append({"round": r + 1, "fell": share, "searches": len(visits), "kept": kept})
         if log is not None:

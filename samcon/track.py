@@ -241,6 +241,7 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
         print(f"{name}: a search from frame {first} to {end} for the feedback regression", file=log, flush=True)
         extra.append(samcon(humanoid, library, clip, frames, search, cfg.cost, rng, start_frame=first,
                             end_frame=end, **common))  # fmt: skip
+    from_reference = list(extra)  # the feedback.starts searches (each also gets an LQR with lqr.enabled)
     feedback_seconds = sum(e.seconds for e in extra)
     feedback_samples = sum(e.samples for e in extra)
     plan = _plan(traj, fb, extra, m)
@@ -299,7 +300,8 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
             return samcon(humanoid, library, clip, frames, search, cfg.cost, rng, start_frame=first, end_frame=end,
                           start=state, **common)  # fmt: skip
 
-        plan.lqr, traj.lqr = grow_paths(traj, library, humanoid, cfg.lqr, cfg.train.eval, recovery, rng, log)
+        plan.lqr, traj.lqr = grow_paths(traj, library, humanoid, cfg.lqr, cfg.train.eval, recovery, rng, log,
+                                        extra=from_reference)  # fmt: skip
         plan.lqr_limit = cfg.lqr.limit
         print(f"{name}: LQR on {len(plan.lqr)} paths in {traj.lqr['seconds']:.0f} s", file=log, flush=True)
     return traj, plan

@@ -164,12 +164,14 @@ def test_lqr_run_stores_its_paths_and_the_report_judges_them(tmp_path: Path) -> 
     humanoid = Humanoid()
     plans, _ = store.load_plans(out / "samcon.h5", humanoid.physics.control_hz)
     plan = plans["walk"]
-    assert plan.lqr_limit == 0.5 and len(plan.lqr) >= 1 and plan.lqr[0].first == 0
+    assert plan.lqr_limit == 0.5 and plan.lqr[0].first == 0
     main_path = plan.lqr[0]
     assert np.array_equal(main_path.targets, plan.targets) and main_path.gain.dtype == np.float32
     assert main_path.gain.shape == (6, humanoid.nu, 2 * humanoid.model.nv)
-    # In 6 frames nothing falls: one path, whose cost-to-go (needed only to choose between paths) is left out.
-    assert len(plan.lqr) == 1 and main_path.cost_to_go is None
+    # The debug config's search from frame 3 (feedback.starts: 1) is the second path; in 6 frames nothing falls, so
+    # no recovery path.
+    assert len(plan.lqr) == 2 and plan.lqr[1].first == 3 and len(plan.lqr[1].targets) == 3
+    assert plan.lqr[1].cost_to_go.shape == (3, 2 * humanoid.model.nv, 2 * humanoid.model.nv)
     results = json.loads((out / "results.json").read_text())
     row = results["clips"]["walk"]
     assert row["lqr"]["paths"] == len(plan.lqr) and len(row["lqr"]["visits"]) == 1
@@ -177,6 +179,29 @@ def test_lqr_run_stores_its_paths_and_the_report_judges_them(tmp_path: Path) -> 
     report = build_report([out], tmp_path / "report", max_frames=6, do_render=False)
     # The report's judge replays the stored paths and gains: the numbers the run measured.
     assert report.results[0].per_clip["mpjpe_g"][0] == pytest.approx(row["feedback"]["mpjpe_g"], rel=1e-12)
+
+
+def test_a_clips_only_path_is_stored_without_its_cost_to_go(tmp_path: Path) -> None:
+    from samcon import store
+    from samcon.track import main
+
+    out = tmp_path / "run"
+    main(["--config", str(ROOT / "configs/samcon/debug.yaml"), "--out", str(out), "--set", "feedback.starts=0",
+          "--set", "optimise.generations=0", "--set", "feedback.visit_iterations=0"])  # fmt: skip
+    plans, _ = store.load_plans(out / "samcon.h5", Humanoid().physics.control_hz)
+    (path,) = plans["walk"].lqr
+    assert path.cost_to_go is None and path.gain.shape[0] == 6
+    results = json.loads((out / "results.json").read_text())["clips"]["walk"]
+    again = evaluate(load_eval_policy_of(out), load_motions(["walk"], Humanoid()), Humanoid(),
+                     EvalConfig(starts_per_clip=2, max_frames=6, threads=1))  # fmt: skip
+    assert again.overall["mpjpe_g"] == pytest.approx(results["feedback"]["mpjpe_g"], rel=1e-12)
+
+
+def load_eval_policy_of(run: Path):
+    from samcon.export import load_eval_policy
+
+    humanoid = Humanoid()
+    return load_eval_policy(run, run / "samcon.h5", humanoid, load_motions(["walk"], humanoid))
 
 
 def test_bad_lqr_settings_are_refused() -> None:
