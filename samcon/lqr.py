@@ -30,7 +30,7 @@ set (LQR-trees' growth; Liu et al. 2016's guided learning aggregates searched st
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Container, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -238,6 +238,43 @@ class LqrPolicy:
         return out
 
 
+def play_until_falls(policy: Policy, library: MotionLibrary, humanoid: Humanoid, clip: int, first: np.ndarray,
+                     steps: int, end: int, keep: Container[int], ev: EvalConfig,
+                     threads: int = 0) -> tuple[list[dict[int, np.ndarray]], np.ndarray]:  # fmt: skip
+    """Episodes of ``policy`` on ``clip`` from the reference at frames ``first`` under the evaluator's failure rule,
+    for at most ``steps`` steps and before frame ``end``.
+
+    Returns:
+        Per episode {frame: full MuJoCo state} at the frames in ``keep`` it reached standing (its first included),
+        and the frame each one failed at (-1: never). Shapes: (N,) each.
+    """
+    n = len(first)
+    gym = TrackingGym(GymConfig(num_envs=n, threads=threads, seed=ev.seed, physics=humanoid.physics,
+                                termination=ev.termination, rsi_lift=ev.rsi_lift), library, humanoid)  # fmt: skip
+    states: list[dict[int, np.ndarray]] = [{} for _ in range(n)]
+    failed = np.full(n, -1)
+    try:
+        result = gym.reset(clips=np.full(n, clip), times=first * library.dt)
+        for i in range(n):
+            if int(first[i]) in keep:
+                states[i][int(first[i])] = gym.sim.state[i].copy()
+        alive = np.ones(n, dtype=bool)
+        for step in range(1, steps + 1):
+            result = gym.step(policy(result), autoreset=False)
+            frame = first + step
+            newly = alive & result.terminated
+            failed[newly] = frame[newly]
+            alive &= ~result.terminated & (frame < end)
+            for i in np.flatnonzero(alive):
+                if int(frame[i]) in keep:
+                    states[i][int(frame[i])] = gym.sim.state[i].copy()
+            if not alive.any():
+                break
+    finally:
+        gym.close()
+    return states, failed
+
+
 def visit_falls(policy: LqrPolicy, name: str, library: MotionLibrary, humanoid: Humanoid, grid: np.ndarray,
                 cfg: LqrConfig, ev: EvalConfig, rng: np.random.Generator,
                 threads: int = 0) -> tuple[list[tuple[int, np.ndarray]], float]:  # fmt: skip
@@ -253,28 +290,10 @@ def visit_falls(policy: LqrPolicy, name: str, library: MotionLibrary, humanoid: 
     cycle = int(round(library.duration[clip] / library.dt)) if library.loop[clip] else int(grid[-1])
     n = cfg.visit_episodes
     first = rng.integers(0, max(1, min(cycle, int(grid[-1]) - 1)), n)
-    gym = TrackingGym(GymConfig(num_envs=n, threads=threads, seed=ev.seed, physics=humanoid.physics,
-                                termination=ev.termination, rsi_lift=ev.rsi_lift), library, humanoid)  # fmt: skip
-    starts = {int(f): i for i, f in enumerate(grid[:-1]) if i + cfg.visit_segments <= len(grid) - 1}
-    states: list[dict[int, np.ndarray]] = [{} for _ in range(n)]
-    failed = np.full(n, -1)
-    try:
-        result = gym.reset(clips=np.full(n, clip), times=first * library.dt)
-        alive = np.ones(n, dtype=bool)
-        last = library.num_frames[clip] - 1 if not library.loop[clip] else np.iinfo(np.int64).max
-        for step in range(1, cfg.visit_frames + 1):
-            result = gym.step(policy(result), autoreset=False)
-            frame = first + step
-            newly = alive & result.terminated
-            failed[newly] = frame[newly]
-            alive &= ~result.terminated & (frame < last)
-            for i in np.flatnonzero(alive):
-                if int(frame[i]) in starts:
-                    states[i][int(frame[i])] = gym.sim.state[i].copy()
-            if not alive.any():
-                break
-    finally:
-        gym.close()
+    starts = {int(f) for i, f in enumerate(grid[:-1]) if i + cfg.visit_segments <= len(grid) - 1}
+    last = library.num_frames[clip] - 1 if not library.loop[clip] else np.iinfo(np.int64).max
+    states, failed = play_until_falls(policy, library, humanoid, clip, first, cfg.visit_frames, last, starts, ev,
+                                      threads)  # fmt: skip
     out = []
     for i in np.flatnonzero(failed >= 0):
         ok = [f for f in states[i] if f <= failed[i] - cfg.visit_lead]

@@ -31,7 +31,6 @@ from common.character.humanoid import Humanoid
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
-from common.sim.gym import GymConfig, TrackingGym
 from common.train.config import ConfigError, atomic_output, load_config
 from common.train.evaluate import EvalConfig, EvalResult, evaluate
 from common.train.run import RunDir, RunDirError
@@ -39,7 +38,7 @@ from samcon import store
 from samcon.config import FeedbackConfig, SamconConfig
 from samcon.cost import COST_TERMS
 from samcon.feedback import ClipPlan, FeedbackPolicy, fit_linear, open_loop_policy
-from samcon.lqr import evaluation_policy, grow_paths
+from samcon.lqr import evaluation_policy, grow_paths, play_until_falls
 from samcon.optimise import optimise_gains, plot_history, reduced_indices
 from samcon.search import SearchAbandoned, Trajectory, cycle_frames, horizon, samcon
 
@@ -149,31 +148,10 @@ def visited_states(plan: ClipPlan, name: str, library: MotionLibrary, humanoid: 
     n = fb.visit_episodes
     # Stratified over the start segments: one draw in each of n equal stretches of them.
     first = starts[np.minimum(((np.arange(n) + rng.random(n)) * len(starts) / n).astype(np.int64), len(starts) - 1)]
-    gym = TrackingGym(GymConfig(num_envs=n, threads=threads, seed=ev.seed, physics=humanoid.physics,
-                                termination=ev.termination, rsi_lift=ev.rsi_lift), library, humanoid)  # fmt: skip
-    policy = FeedbackPolicy({name: plan}, library, humanoid)
     on_grid = {int(f): i for i, f in enumerate(grid)}
-    states: list[dict[int, np.ndarray]] = [{} for _ in first]
-    failed = np.full(n, -1)
-    try:
-        result = gym.reset(clips=np.full(n, clip), times=first * library.dt)
-        for i in range(n):
-            states[i][int(first[i])] = gym.sim.state[i].copy()
-        alive = np.ones(n, dtype=bool)
-        steps = int(min(fb.visit_frames, grid[-1] - first.min()))
-        for step in range(1, steps + 1):
-            result = gym.step(policy(result), autoreset=False)
-            frame = first + step
-            newly = alive & result.terminated
-            failed[newly] = frame[newly]
-            alive &= ~result.terminated & (frame < grid[-1])
-            for i in np.flatnonzero(alive):
-                if int(frame[i]) in on_grid:
-                    states[i][int(frame[i])] = gym.sim.state[i].copy()
-            if not alive.any():
-                break
-    finally:
-        gym.close()
+    steps = int(min(fb.visit_frames, grid[-1] - first.min()))
+    states, failed = play_until_falls(FeedbackPolicy({name: plan}, library, humanoid), library, humanoid, clip, first,
+                                      steps, int(grid[-1]), on_grid, ev, threads)  # fmt: skip
     out = []
     for i in np.flatnonzero(failed >= 0):
         ok = [f for f in states[i] if f <= failed[i] - fb.visit_lead and on_grid[f] + segments <= len(grid) - 1]
