@@ -211,3 +211,16 @@ def test_bad_lqr_settings_are_refused() -> None:
         LqrConfig(limit=0.0)
     with pytest.raises(ValueError, match="visit_lead"):
         LqrConfig(visit_lead=-1)
+
+
+def test_lqr_walk_config_is_the_default_but_for_its_paths() -> None:
+    from dataclasses import asdict
+
+    from common.train.config import load_config
+    from samcon.config import SamconConfig
+
+    default = asdict(load_config(SamconConfig, str(ROOT / "configs/samcon/default.yaml"), []))
+    walk = asdict(load_config(SamconConfig, str(ROOT / "configs/samcon/lqr-walk.yaml"), []))
+    changed = {(sec, k) for sec in default for k in default[sec] if default[sec][k] != walk[sec][k]}
+    assert changed == {("train", "eval"), ("search", "sigma_init"), ("feedback", "starts")}
+    assert walk["lqr"]["enabled"] and walk["feedback"]["starts"] == 12 and walk["search"]["sigma_init"] == 0.1
