@@ -372,6 +372,62 @@ class LqrConfig:
 
 
 @dataclass(frozen=True)
+class PolishConfig:
+    """iLQR on the searched open-loop path (:mod:`samcon.polish`, session 19), before the feedback is fitted.
+
+    Attributes:
+        iterations: iLQR iterations per window (0: off). Each linearises the window (about 10 s of one core per 512
+            frames) and rolls out every step size at least once.
+        window: Frames per window (0: the whole path at once). Windows start ``stride`` frames apart (0: the
+            window), each from the path's state at its first frame as the windows before left it.
+        stride: See ``window``.
+        lookahead: With windows, frames after each window whose cost (and falls) count in its own, their targets
+            held as they are.
+        body: Weight of the mean squared body position error (m^2; 100: 0.1 m costs 1 per frame).
+        velocity: Weight of the squared hinge velocity error ((rad/s)^2).
+        control: Weight of the squared offset of the targets from the reference's next-frame angles (rad^2).
+        eps: Finite-difference step of the linearisation.
+        alphas: Step sizes tried in every forward pass (one batch).
+        mu_init, mu_min, mu_max, mu_factor: The regularisation of Q_uu: starts at mu_init, divided by mu_factor
+            after a step that lowered the cost (not below mu_min), multiplied after one that did not; the polish
+            stops when it would exceed mu_max.
+        tolerance: Stop when an iteration lowers the cost by less than this share.
+        verbose: Log every forward pass (regularisation, expected change, each step size's cost).
+    """
+
+    iterations: int = 0
+    window: int = 0
+    stride: int = 0
+    lookahead: int = 0
+    body: float = 100.0
+    velocity: float = 0.001
+    control: float = 0.01
+    eps: float = 1e-6
+    alphas: tuple[float, ...] = (1.0, 0.5, 0.25, 0.1, 0.03)
+    mu_init: float = 1.0
+    mu_min: float = 1e-3
+    mu_max: float = 1e4
+    mu_factor: float = 4.0
+    tolerance: float = 0.002
+    verbose: bool = False
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "alphas", tuple(float(a) for a in self.alphas))
+        if self.iterations < 0:
+            raise ValueError(f"polish.iterations must be >= 0, got {self.iterations}")
+        if self.lookahead < 0:
+            raise ValueError(f"polish.lookahead must be >= 0, got {self.lookahead}")
+        if self.window < 0 or self.stride < 0 or (self.window and self.stride > self.window):
+            raise ValueError(f"polish: need window >= 0 and 0 <= stride <= window, got {self.window}, {self.stride}")
+        if min(self.body, self.velocity, self.control) < 0 or self.body == 0:
+            raise ValueError("polish: need body > 0 and velocity, control >= 0")
+        if not (self.eps > 0 and self.alphas and min(self.alphas) > 0):
+            raise ValueError("polish: need eps > 0 and at least one step size, all > 0")
+        if not (0 < self.mu_min <= self.mu_init <= self.mu_max and self.mu_factor > 1 and self.tolerance >= 0):
+            raise ValueError("polish: need 0 < mu_min <= mu_init <= mu_max, mu_factor > 1, tolerance >= 0")
+
+
+@dataclass(frozen=True)
 class SamconConfig:
     """Everything ``track-samcon`` reads."""
 
@@ -382,6 +438,7 @@ class SamconConfig:
     feedback: FeedbackConfig = field(default_factory=FeedbackConfig)
     optimise: OptimiseConfig = field(default_factory=OptimiseConfig)
     lqr: LqrConfig = field(default_factory=LqrConfig)
+    polish: PolishConfig = field(default_factory=PolishConfig)
 
     def __post_init__(self) -> None:
         if self.feedback.index == "phase" and not self.search.align_cycle:

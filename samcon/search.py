@@ -77,6 +77,9 @@ class Trajectory:
         optimise: With ``optimise.generations`` > 0, the closed-loop gain search's summary and learning curve
             (:func:`samcon.optimise.optimise_gains`) and its ``seconds``.
         lqr: With ``lqr.enabled``, the LQR paths' summary (:func:`samcon.lqr.grow_paths`).
+        polish: With ``polish.iterations`` > 0, the iLQR polish's summary (:func:`samcon.polish.polish`); the
+            targets, offsets (then each segment's mean), segment costs (then without the look-ahead), terms and end
+            states are the polished path's.
         visits: With ``feedback.visit_iterations`` > 0, per round: the share of its episodes that fell before the
             round's searches, and how many searches it ran.
     """
@@ -102,6 +105,7 @@ class Trajectory:
     optimise: dict[str, Any] | None = None
     visits: list[dict[str, Any]] | None = None
     lqr: dict[str, Any] | None = None
+    polish: dict[str, Any] | None = None
 
     @property
     def frames(self) -> int:

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from common.character.humanoid import Humanoid
+from common.character.kinematics import ForwardKinematics
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
@@ -36,11 +37,12 @@ from common.train.evaluate import EvalConfig, EvalResult, evaluate
 from common.train.run import RunDir, RunDirError
 from samcon import store
 from samcon.config import FeedbackConfig, SamconConfig
-from samcon.cost import COST_TERMS
+from samcon.cost import COST_TERMS, tracking_cost
 from samcon.feedback import ClipPlan, FeedbackPolicy, fit_linear, open_loop_policy
 from samcon.lqr import evaluation_policy, grow_paths, play_until_falls
 from samcon.optimise import optimise_gains, plot_history, reduced_indices
-from samcon.search import SearchAbandoned, Trajectory, cycle_frames, horizon, samcon
+from samcon.polish import polish
+from samcon.search import SearchAbandoned, Trajectory, cycle_frames, horizon, reference_frames, replay, samcon
 
 LEARNER = "samcon"
 
@@ -245,6 +247,10 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
             plan = _plan(traj, fb, [*extra, *guided], m)
         else:
             plan = ClipPlan(traj.targets, _plan_bounds(traj, m), *anchored(traj, fb, *fit_samples(again, fb, extra, m)))
+    if cfg.polish.iterations:
+        # The open-loop path is final here; the regressed feedback stays anchored on the searched one.
+        traj = polished(traj, cfg, humanoid, library, clip, log)
+        plan.targets = traj.targets
     visit_rounds = []
     for it in range(fb.visit_iterations):
         segments = max(1, fb.start_segments)
@@ -285,6 +291,40 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
     return traj, plan
 
 
+def polished(traj: Trajectory, cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
+             log: Any) -> Trajectory:  # fmt: skip
+    """``traj`` (from the clip's start) after the iLQR polish (:mod:`samcon.polish`), its per-segment record
+    recomputed along the polished path; the polish's seconds count in the oracle's."""
+    hinge = humanoid.hinge_qpos
+    ref = reference_frames(library, clip, traj.frames)
+    ref_targets = ref.qpos[1:, hinge]
+    targets, summary = polish(humanoid, traj.start_state, traj.targets, ref, ref_targets, cfg.polish,
+                              cfg.cost.fall_head_error, traj.clip, log, lqr=cfg.lqr)  # fmt: skip
+    states = replay(humanoid, traj.start_state, targets, cfg.gym.max_speed)
+    m = humanoid.model
+    fk = ForwardKinematics(humanoid, threads=0)
+    try:
+        sim = fk(states[:, 1 : 1 + m.nq], states[:, 1 + m.nq : 1 + m.nq + m.nv])
+    finally:
+        fk.close()
+    per_frame, terms = tracking_cost(humanoid, cfg.cost, sim, ref[1:])
+    seg = np.repeat(np.arange(len(traj.bounds) - 1), np.diff(traj.bounds))
+    count = np.bincount(seg)
+
+    def mean(values: np.ndarray) -> np.ndarray:
+        return np.bincount(seg, weights=values) / count
+
+    summary["windows"] = [{k: w[k] for k in ("first", "end")} | {"steps": len(w["iterations"]) - 1}
+                          for w in summary["windows"]]  # fmt: skip
+    return replace(
+        traj, targets=targets,
+        offsets=np.stack([(targets - ref_targets)[seg == k].mean(axis=0) for k in range(len(count))]),
+        segment_cost=mean(per_frame),
+        segment_terms={k: mean(terms[k]) for k in COST_TERMS} | {"fallen": np.bincount(seg, terms["fallen"] * 1.0)},
+        end_states=states[traj.bounds[1:] - 1], seconds=traj.seconds + summary["seconds"], polish=summary,
+    )  # fmt: skip
+
+
 def diagnose(traj: Trajectory, cfg: SamconConfig) -> dict[str, Any]:
     """Where the trajectory is worst: the largest weighted cost term, and the first frame it fell (None: never)."""
     weighted = {k: float(getattr(cfg.cost, k) * traj.segment_terms[k].mean()) for k in COST_TERMS}
@@ -313,6 +353,8 @@ def _clip_rows(library: MotionLibrary, results: list[tuple[Trajectory, ClipPlan]
             rows[traj.clip]["visits"] = traj.visits
         if traj.lqr is not None:
             rows[traj.clip]["lqr"] = traj.lqr
+        if traj.polish is not None:
+            rows[traj.clip]["polish"] = traj.polish
     return rows
 
 

@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
 from report.compare import build_report
 from report.runs import ReportError, load_run
 from samcon.track import main
@@ -51,6 +53,20 @@ def test_debug_run_writes_its_run_directory(run: Path) -> None:
         ref_offset = f["clips/walk/ref_offset"][()]
     assert ref_offset.shape == (2, 28) and np.count_nonzero(ref_offset[:, [14, 21]]) == 4  # right_hip_x, left_hip_x
     assert np.count_nonzero(ref_offset) == 4
+    # The iLQR polish of the debug config: windows at frames 0 and 2 (4 frames each, the second cut at 6); the
+    # stored targets are the polished path's and replay to its stored segment-end states.
+    polish = walk["polish"]
+    assert [(w["first"], w["end"]) for w in polish["windows"]] == [(0, 4), (2, 6)]
+    assert "walk: polished, cost" in log and polish["seconds"] > 0
+    assert polish["cost_after"] <= polish["cost_before"] or not polish["kept"]
+    from samcon.search import replay, start_state
+
+    humanoid = Humanoid()
+    with h5py.File(run / "samcon.h5") as f:
+        targets, end_states = f["clips/walk/targets"][()], f["clips/walk/end_states"][()]
+        start = f["clips/walk/start_state"][()]
+    np.testing.assert_array_equal(start, start_state(load_motions(["walk"], humanoid), humanoid, 0))
+    np.testing.assert_array_equal(replay(humanoid, start, targets)[[2, 5]], end_states)
 
 
 def test_compare_trackers_reads_a_samcon_run(run: Path, tmp_path: Path) -> None:
@@ -187,7 +203,7 @@ def test_phase_index_without_aligned_segments_is_refused(tmp_path: Path) -> None
 def test_sigma_choices_keep_the_cheaper_search(tmp_path: Path) -> None:
     out = tmp_path / "choices"
     main(["--config", DEBUG, "--out", str(out), "--set", "search.sigma_choices=[0.02, 0.5]", "--set",
-          "feedback.refine_iterations=0", "--set", "feedback.starts=0"])  # fmt: skip
+          "feedback.refine_iterations=0", "--set", "feedback.starts=0", "--set", "polish.iterations=0"])  # fmt: skip
     log = (out / "progress.log").read_text()
     line = next(x for x in log.splitlines() if "kept the search at sigma" in x)
     entries = dict(pair.split(": ", 1) for pair in line.split("by sigma: ")[1][:-1].split(", "))
@@ -300,3 +316,16 @@ def test_oracle_config_is_the_default_but_for_its_search_cost_and_polish() -> No
     assert changed == {("search", "iterations"), ("search", "sigma_choices"), ("cost", "body_pos"),
                        ("feedback", "refine_iterations")}  # fmt: skip
     assert oracle["search"]["iterations"] == 4 and oracle["cost"]["body_pos"] == 100.0
+
+
+def test_polish_config_is_the_default_but_for_its_polish() -> None:
+    from dataclasses import asdict
+
+    from common.train.config import load_config
+    from samcon.config import SamconConfig
+
+    default = asdict(load_config(SamconConfig, str(ROOT / "configs/samcon/default.yaml"), []))
+    polish = asdict(load_config(SamconConfig, str(ROOT / "configs/samcon/polish.yaml"), []))
+    changed = {sec for sec in default for k in default[sec] if default[sec][k] != polish[sec][k]}
+    assert changed == {"polish"} and default["polish"]["iterations"] == 0
+    assert polish["polish"]["iterations"] == 10 and polish["polish"]["window"] == 60

@@ -1,0 +1,326 @@
+"""Trajectory optimisation after the search: iterative LQR (iLQR) on SAMCON's open-loop path, scored by the judge's
+own body-position error.
+
+SAMCON is greedy in time: it keeps, segment by segment, the samples that track that segment (and a 0.2 s look-ahead)
+best, so it cannot give up a little now to be much better a second later; where a clip's root swings out and back
+(session 17: kick, punch, dance_a) the search follows the swing late and never wins the distance back. iLQR (Li &
+Todorov 2004; with the regularisation and line search of Tassa, Erez & Todorov 2012, as MuJoCo MPC's iLQG uses it)
+optimises the whole path at once from the simulator's own derivatives:
+
+1. **Linearise** the path (:func:`samcon.lqr.linearise`: ``A_t``, ``B_t`` per control step from MuJoCo's
+   ``mjd_transitionFD``).
+2. **Cost** of the state after control step t: ``w_body`` x the mean over the 15 bodies of the squared distance of
+   the body frame origin from the reference's (the square of the judge's MPJPE-g per body), ``w_vel`` x the squared
+   hinge velocity error, and ``w_control`` x the squared offset of the targets from the reference's next-frame
+   hinge angles. Its gradient and Gauss-Newton Hessian in the state's tangent space come from MuJoCo's body
+   Jacobians (``mj_jacBody``).
+3. **Backward pass**: the Riccati-like recursion of iLQR gives an open-loop change ``k_t`` and a feedback ``K_t`` per
+   step (``Q_uu`` regularised by ``mu``, raised when it is not positive definite or a step fails).
+4. **Forward pass**: ``u_t = u_t + alpha k_t + K_t (x_t' - x_t)`` rolled out in the gym's own physics
+   (:class:`common.sim.sim.BatchedSim`, every step size ``alpha`` a character of one batch); the cheapest rollout
+   that lowers the true cost and does not fall (the evaluator's head rule) is the new path. Its targets are the
+   ones it applied, so the result is again an open-loop path that replays bit-exactly from the clip's start.
+
+A clip whose reference needs force no contact gives (``samcon.feasibility``) keeps an error there whatever the
+targets; iLQR spends it where it costs least over the whole clip instead of where the greedy search left it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, TextIO
+
+import mujoco
+import numpy as np
+
+from common.character.humanoid import Humanoid
+from common.character.kinematics import ForwardKinematics
+from common.character.state import CharacterState
+from common.sim.sim import BatchedSim
+from samcon.config import LqrConfig, PolishConfig
+from samcon.lqr import linearise, nominal_states, riccati, state_weights
+
+_FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
+Step = tuple[np.ndarray, np.ndarray, float, float]
+"""k (F, nu), K (F, nu, n), and the expected change's linear and quadratic coefficients."""
+
+
+@dataclass
+class PathCost:
+    """The iLQR cost of a path: total, per-frame parts, and whether it fell."""
+
+    total: float
+    body: np.ndarray  # (F,) mean squared body position error (m^2) after each step
+    fell_at: int  # first frame (1-based step count) the head rule fired, -1: never
+
+
+class BodyCost:
+    """The cost of step t's resulting state and its derivatives (see the module docstring).
+
+    Args:
+        ref: The reference at frames 0..F (:func:`samcon.search.reference_frames`).
+        ref_targets: The reference's next-frame hinge angles of every step. Shape: (F, nu).
+    """
+
+    def __init__(self, humanoid: Humanoid, cfg: PolishConfig, ref: CharacterState, ref_targets: np.ndarray,
+                 fall_head_error: float) -> None:  # fmt: skip
+        self.humanoid, self.cfg, self.ref, self.ref_targets = humanoid, cfg, ref, ref_targets
+        self.fall_head_error = fall_head_error
+        m = humanoid.model
+        self._ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in humanoid.body_names]
+        self._hinge_dof = humanoid.hinge_dof
+        self._data = mujoco.MjData(m)
+        self._fk = ForwardKinematics(humanoid, threads=0)
+
+    def close(self) -> None:
+        self._fk.close()
+
+    def path_cost(self, states: np.ndarray, targets: np.ndarray, first: int) -> PathCost:
+        """The cost of the path through ``states`` (F + 1, nstate) under ``targets`` (F, nu), ``states[0]`` at
+        clip frame ``first``."""
+        h = self.humanoid
+        nq, nv = h.nq, h.nv
+        sim = self._fk(states[1:, 1 : 1 + nq], states[1:, 1 + nq : 1 + nq + nv])
+        ref = self.ref[first + 1 : first + len(states)]
+        body = np.mean(np.sum((sim.body_pos - ref.body_pos) ** 2, axis=-1), axis=-1)
+        vel = np.sum((sim.qvel[:, self._hinge_dof] - ref.qvel[:, self._hinge_dof]) ** 2, axis=-1)
+        ctrl = np.sum((targets - self.ref_targets[first : first + len(targets)]) ** 2, axis=-1)
+        head = h.head_index
+        fallen = np.abs(sim.body_pos[:, head, 2] - ref.body_pos[:, head, 2]) > self.fall_head_error
+        total = float(np.sum(self.cfg.body * body + self.cfg.velocity * vel + self.cfg.control * ctrl))
+        return PathCost(total, body, int(np.argmax(fallen)) + 1 if fallen.any() else -1)
+
+    def state_derivatives(self, state: np.ndarray, frame: int) -> tuple[np.ndarray, np.ndarray]:
+        """Gradient and Gauss-Newton Hessian of the state cost at reference frame ``frame`` in the tangent space
+        (2 nv). Shapes: (2 nv,), (2 nv, 2 nv)."""
+        m, d = self.humanoid.model, self._data
+        nv = m.nv
+        mujoco.mj_setState(m, d, state, _FULL)
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        grad, hess = np.zeros(2 * nv), np.zeros((2 * nv, 2 * nv))
+        jac = np.zeros((3, nv))
+        w = 2.0 * self.cfg.body / len(self._ids)
+        for b, body_id in enumerate(self._ids):
+            mujoco.mj_jacBody(m, d, jac, None, body_id)
+            err = d.xpos[body_id] - self.ref.body_pos[frame, b]
+            grad[:nv] += w * jac.T @ err
+            hess[:nv, :nv] += w * jac.T @ jac
+        dof = nv + self._hinge_dof
+        grad[dof] += 2.0 * self.cfg.velocity * (d.qvel[self._hinge_dof] - self.ref.qvel[frame, self._hinge_dof])
+        hess[dof, dof] += 2.0 * self.cfg.velocity
+        return grad, hess
+
+
+def backward_pass(a: np.ndarray, b: np.ndarray, lx: np.ndarray, lxx: np.ndarray, lu: np.ndarray, luu: float,
+                  mu: float, free: int | None = None) -> Step | None:  # fmt: skip
+    """iLQR's backward pass for ``x_{t+1} = A_t x_t + B_t u_t``, cost ``sum_t l_u(u_t) + l_x(x_{t+1})``.
+
+    Args:
+        a, b: Shapes: (F, n, n), (F, n, nu).
+        lx, lxx: Gradient and Hessian of the state cost of x_1..x_F. Shapes: (F, n), (F, n, n).
+        lu: Gradient of the control cost of u_0..u_{F-1}. Shape: (F, nu). luu: its (scalar x identity) Hessian.
+        mu: Regularisation added to Q_uu.
+        free: Only the controls of steps before this one change (None: all); the later steps' cost still shapes
+            the change through the value function.
+
+    Returns:
+        k (F, nu), K (F, nu, n), and the expected change's linear and quadratic coefficients (the change for step
+        size alpha is ``alpha d1 + alpha^2 d2``); None if some Q_uu is not positive definite.
+    """
+    frames, n, nu = b.shape
+    k, gain = np.zeros((frames, nu)), np.zeros((frames, nu, n))
+    vx, vxx = lx[-1].copy(), lxx[-1].copy()
+    d1 = d2 = 0.0
+    eye = np.eye(nu)
+    free = frames if free is None else free
+    for t in range(frames - 1, -1, -1):
+        if t >= free:
+            vx, vxx = a[t].T @ vx, a[t].T @ vxx @ a[t]
+            if t > 0:
+                vx, vxx = vx + lx[t - 1], vxx + lxx[t - 1]
+            continue
+        qx = a[t].T @ vx
+        qu = lu[t] + b[t].T @ vx
+        vb = vxx @ b[t]
+        quu = b[t].T @ vb + (luu + mu) * eye
+        qux = vb.T @ a[t]
+        qxx = a[t].T @ vxx @ a[t]
+        try:
+            chol = np.linalg.cholesky(0.5 * (quu + quu.T))
+        except np.linalg.LinAlgError:
+            return None
+        rhs = np.column_stack([qu, qux])
+        sol = np.linalg.solve(chol.T, np.linalg.solve(chol, rhs))
+        k[t], gain[t] = -sol[:, 0], -sol[:, 1:]
+        d1 += float(k[t] @ qu)
+        d2 += 0.5 * float(k[t] @ quu @ k[t])
+        vx = qx + gain[t].T @ quu @ k[t] + gain[t].T @ qu + qux.T @ k[t]
+        vxx = qxx + gain[t].T @ quu @ gain[t] + gain[t].T @ qux + qux.T @ gain[t]
+        vxx = 0.5 * (vxx + vxx.T)
+        if t > 0:
+            vx, vxx = vx + lx[t - 1], vxx + lxx[t - 1]
+    return k, gain, d1, d2
+
+
+def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targets: np.ndarray, k: np.ndarray,
+                 gain: np.ndarray, alphas: np.ndarray,
+                 limit: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Rolls out ``u_t + alpha k_t + clip(K_t dx_t, +-limit)`` for every alpha in one batch from ``start``, dx the
+    deviation from ``states``.
+
+    Returns:
+        states (A, F + 1, nstate), the targets applied (A, F, nu) and which rollouts blew up (A,).
+    """
+    m = humanoid.model
+    nq, nv = m.nq, m.nv
+    n, frames = len(alphas), len(targets)
+    sim = BatchedSim(humanoid, n, threads=0)
+    out = np.zeros((n, frames + 1, len(start)))
+    applied = np.zeros((n, frames, m.nu))
+    dq = np.zeros(nv)
+    blown = np.zeros(n, dtype=bool)
+    try:
+        sim.state[:] = start
+        out[:, 0] = start
+        for t in range(frames):
+            for i in range(n):
+                s = sim.state[i]
+                mujoco.mj_differentiatePos(m, dq, 1.0, states[t, 1 : 1 + nq], s[1 : 1 + nq])
+                dx = np.concatenate([dq, s[1 + nq : 1 + nq + nv] - states[t, 1 + nq : 1 + nq + nv]])
+                applied[i, t] = targets[t] + alphas[i] * k[t] + np.clip(gain[t] @ dx, -limit, limit)
+            blown |= sim.step(applied[:, t])
+            sim.state[blown] = start  # a blown-up rollout is dropped; its state only has to stay finite
+            out[:, t + 1] = sim.state
+    finally:
+        sim.close()
+    return out, applied, blown
+
+
+def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.ndarray, first: int,
+          cfg: PolishConfig, label: str, log: TextIO | None,
+          free: int | None = None) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]]]:  # fmt: skip
+    """iLQR on the path that plays ``targets`` (F, nu) from ``start`` at clip frame ``first``, changing the
+    targets of its first ``free`` steps only (None: all).
+
+    Returns:
+        Its targets and states (F + 1, nstate) at the end, and per accepted iteration the cost and step.
+    """
+    t0 = time.perf_counter()
+    states = nominal_states(humanoid, start, targets)
+    current = cost.path_cost(states, targets, first)
+    history: list[dict[str, Any]] = [{"iteration": 0, "cost": current.total}]
+    mu = cfg.mu_init
+    alphas = np.asarray(cfg.alphas, dtype=np.float64)
+    frames = len(targets)
+    ref_targets = cost.ref_targets[first : first + frames]
+    for it in range(1, cfg.iterations + 1):
+        a, b = linearise(humanoid, states, targets, cfg.eps)
+        derivs = [cost.state_derivatives(states[t + 1], first + t + 1) for t in range(frames)]
+        lx, lxx = np.stack([g for g, _ in derivs]), np.stack([h for _, h in derivs])
+        lu = 2.0 * cfg.control * (targets - ref_targets)
+        accepted = False
+        while not accepted and mu <= cfg.mu_max:
+            bp = backward_pass(a, b, lx, lxx, lu, 2.0 * cfg.control, mu, free)
+            if bp is None:
+                mu *= cfg.mu_factor
+                continue
+            k, gain, d1, d2 = bp
+            roll, applied, blown = forward_pass(humanoid, start, states, targets, k, gain, alphas)
+            trials = [cost.path_cost(roll[i], applied[i], first) for i in range(len(alphas))]
+            ok = [i for i, c in enumerate(trials)
+                  if not blown[i] and np.isfinite(c.total) and (c.fell_at < 0 or current.fell_at >= 0)]  # fmt: skip
+            best = min(ok, key=lambda i: trials[i].total) if ok else None
+            if cfg.verbose and log is not None:
+                print(f"  mu {mu:.3g} expected {d1 + d2:.4g} trials " + " ".join(
+                    f"{c.total:.4g}{'b' if blown[i] else ''}{'f' if c.fell_at >= 0 else ''}"
+                    for i, c in enumerate(trials)), file=log, flush=True)  # fmt: skip
+            if best is not None and trials[best].total < current.total:
+                states, targets, current = roll[best], applied[best], trials[best]
+                accepted = True
+                mu = max(cfg.mu_min, mu / cfg.mu_factor)
+                history.append({"iteration": it, "cost": current.total, "alpha": float(alphas[best]),
+                                "expected": float(alphas[best] * d1 + alphas[best] ** 2 * d2), "mu": mu})  # fmt: skip
+            else:
+                mu *= cfg.mu_factor
+        if cfg.verbose and log is not None:
+            print(f"{label} iteration {it}: cost {current.total:.4g}{'' if accepted else ' (no step improved)'} "
+                  f"{time.perf_counter() - t0:.0f} s", file=log, flush=True)  # fmt: skip
+        if not accepted:
+            break
+        if len(history) > 2 and history[-2]["cost"] - current.total < cfg.tolerance * history[-2]["cost"]:
+            break
+    return targets, states, history
+
+
+def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: CharacterState,
+           ref_targets: np.ndarray, cfg: PolishConfig, fall_head_error: float, name: str = "",
+           log: TextIO | None = None, lqr: LqrConfig | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
+    """iLQR from the open-loop path ``targets`` (F, nu) played from ``start`` at the clip's frame 0 (see the
+    module docstring): over the whole path at once (``cfg.window`` 0), or window by window, each ``cfg.window``
+    frames from the path's current state at its first frame, the next ``cfg.stride`` frames later; each window's
+    cost also counts the ``cfg.lookahead`` frames after it.
+
+    A window starts where the windows before left the character, off the searched path, whose open-loop targets
+    from there soon fall (jog: every window's starting cost rose tenfold). So with ``lqr`` the frames no window has
+    changed yet start from the searched path tracked by its time-varying LQR (:mod:`samcon.lqr`, these weights):
+    ``u*_t + clip(K_t (x_t - x*_t))``.
+
+    Returns:
+        The polished targets (F, nu) (``targets`` itself if the polished path costs more or falls where it did
+        not) and a summary: the cost and body error before and after, per window its iterations, seconds.
+    """
+    t0 = time.perf_counter()
+    cost = BodyCost(humanoid, cfg, ref, ref_targets, fall_head_error)
+    frames = len(targets)
+    try:
+        states = nominal_states(humanoid, start, targets)
+        before = cost.path_cost(states, targets, 0)
+        new = targets.copy()
+        window = cfg.window or frames
+        stride = cfg.stride or window
+        firsts = list(range(0, max(1, frames - window + stride), stride))
+        windows = []
+        searched, track = states.copy(), None
+        if lqr is not None and cfg.window:
+            a, b = linearise(humanoid, searched, targets, lqr.eps)
+            q = np.diag(state_weights(humanoid, lqr))
+            track = riccati(a, b, q, lqr.control * np.eye(humanoid.model.nu), q)[0]
+        changed = 0  # frames before this one have been a window's to change
+        for j, s in enumerate(firsts):
+            e = min(frames, s + window)
+            tail = min(frames, e + cfg.lookahead) if cfg.window else e
+            init = new[s:tail]
+            if track is not None and tail > changed:
+                gain = np.zeros((tail - s, *track.shape[1:]))
+                gain[max(0, changed - s) :] = track[max(s, changed) : tail]
+                base = np.where((np.arange(s, tail) >= changed)[:, None], targets[s:tail], new[s:tail])
+                _, applied, blown = forward_pass(humanoid, states[s], searched[s : tail + 1], base,
+                                                 np.zeros_like(base), gain, np.zeros(1), lqr.limit)  # fmt: skip
+                init = init if blown[0] else applied[0]
+            label = f"{name} polish frames {s}-{e}"
+            new[s:tail], states[s : tail + 1], hist = _ilqr(humanoid, cost, states[s], init, s, cfg, label, log,
+                                                            free=e - s)  # fmt: skip
+            changed = max(changed, e)
+            windows.append({"first": s, "end": e, "iterations": hist})
+            if log is not None:
+                print(f"{label} ({j + 1}/{len(firsts)}): cost {hist[0]['cost']:.4g} -> {hist[-1]['cost']:.4g} in "
+                      f"{len(hist) - 1} steps, {time.perf_counter() - t0:.0f} s", file=log, flush=True)  # fmt: skip
+        final_states = nominal_states(humanoid, start, new)
+        after = cost.path_cost(final_states, new, 0)
+        worse = after.total >= before.total or (after.fell_at >= 0 and before.fell_at < 0)
+    finally:
+        cost.close()
+    summary = {
+        "cost_before": before.total, "cost_after": after.total, "kept": not worse,
+        "body_rms_mm_before": 1000 * float(np.sqrt(before.body.mean())),
+        "body_rms_mm_after": 1000 * float(np.sqrt(after.body.mean())),
+        "windows": windows, "seconds": time.perf_counter() - t0,
+    }  # fmt: skip
+    if log is not None:
+        print(f"{name}: polished, cost {before.total:.4g} -> {after.total:.4g}, body rms "
+              f"{summary['body_rms_mm_before']:.1f} -> {summary['body_rms_mm_after']:.1f} mm"
+              f"{' (worse: the searched path is kept)' if worse else ''}, {summary['seconds']:.0f} s", file=log,
+              flush=True)  # fmt: skip
+    return (targets if worse else new), summary
