@@ -383,8 +383,16 @@ class PolishConfig:
         stride: See ``window``.
         lookahead: With windows, frames after each window whose cost (and falls) count in its own, their targets
             held as they are.
+        search: With windows, the frames after the previous window's look-ahead start from a SAMCON search (the
+            run's search settings) from where that look-ahead left the character, not from the searched path
+            tracked by its LQR (which holds 30-60 frames from the states the windows leave; jog, run and backflip
+            then began windows fallen). Its samples count in the clip's.
+        passes: Sweeps of windows over the path, each from the best path so far (a pass that ends dearer or falls
+            where the best did not is dropped).
         body: Weight of the mean squared body position error (m^2; 100: 0.1 m costs 1 per frame).
         velocity: Weight of the squared hinge velocity error ((rad/s)^2).
+        root_velocity: Weight of the squared error of the root's velocities (MuJoCo's free joint: linear in the
+            world frame, angular in the root frame; (m/s)^2 and (rad/s)^2).
         control: Weight of the squared offset of the targets from the reference's next-frame angles (rad^2).
         eps: Finite-difference step of the linearisation.
         alphas: Step sizes tried in every forward pass (one batch).
@@ -399,8 +407,11 @@ class PolishConfig:
     window: int = 0
     stride: int = 0
     lookahead: int = 0
+    passes: int = 1
+    search: bool = False
     body: float = 100.0
     velocity: float = 0.001
+    root_velocity: float = 0.0
     control: float = 0.01
     eps: float = 1e-6
     alphas: tuple[float, ...] = (1.0, 0.5, 0.25, 0.1, 0.03)
@@ -415,11 +426,13 @@ class PolishConfig:
         object.__setattr__(self, "alphas", tuple(float(a) for a in self.alphas))
         if self.iterations < 0:
             raise ValueError(f"polish.iterations must be >= 0, got {self.iterations}")
+        if self.passes < 1:
+            raise ValueError(f"polish.passes must be >= 1, got {self.passes}")
         if self.lookahead < 0:
             raise ValueError(f"polish.lookahead must be >= 0, got {self.lookahead}")
         if self.window < 0 or self.stride < 0 or (self.window and self.stride > self.window):
             raise ValueError(f"polish: need window >= 0 and 0 <= stride <= window, got {self.window}, {self.stride}")
-        if min(self.body, self.velocity, self.control) < 0 or self.body == 0:
+        if min(self.body, self.velocity, self.root_velocity, self.control) < 0 or self.body == 0:
             raise ValueError("polish: need body > 0 and velocity, control >= 0")
         if not (self.eps > 0 and self.alphas and min(self.alphas) > 0):
             raise ValueError("polish: need eps > 0 and at least one step size, all > 0")

@@ -28,6 +28,7 @@ targets; iLQR spends it where it costs least over the whole clip instead of wher
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TextIO
 
@@ -43,6 +44,8 @@ from samcon.lqr import linearise, nominal_states, riccati, state_weights
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 Step = tuple[np.ndarray, np.ndarray, float, float]
+Searcher = Callable[[int, int, np.ndarray], "np.ndarray | None"]
+"""(first frame, end frame, full state at the first) -> targets of frames first..end-1, or None."""
 """k (F, nu), K (F, nu, n), and the expected change's linear and quadratic coefficients."""
 
 
@@ -85,10 +88,12 @@ class BodyCost:
         ref = self.ref[first + 1 : first + len(states)]
         body = np.mean(np.sum((sim.body_pos - ref.body_pos) ** 2, axis=-1), axis=-1)
         vel = np.sum((sim.qvel[:, self._hinge_dof] - ref.qvel[:, self._hinge_dof]) ** 2, axis=-1)
+        root_vel = np.sum((sim.qvel[:, :6] - ref.qvel[:, :6]) ** 2, axis=-1)
         ctrl = np.sum((targets - self.ref_targets[first : first + len(targets)]) ** 2, axis=-1)
         head = h.head_index
         fallen = np.abs(sim.body_pos[:, head, 2] - ref.body_pos[:, head, 2]) > self.fall_head_error
-        total = float(np.sum(self.cfg.body * body + self.cfg.velocity * vel + self.cfg.control * ctrl))
+        total = float(np.sum(self.cfg.body * body + self.cfg.velocity * vel + self.cfg.root_velocity * root_vel
+                             + self.cfg.control * ctrl))  # fmt: skip
         return PathCost(total, body, int(np.argmax(fallen)) + 1 if fallen.any() else -1)
 
     def state_derivatives(self, state: np.ndarray, frame: int) -> tuple[np.ndarray, np.ndarray]:
@@ -110,6 +115,8 @@ class BodyCost:
         dof = nv + self._hinge_dof
         grad[dof] += 2.0 * self.cfg.velocity * (d.qvel[self._hinge_dof] - self.ref.qvel[frame, self._hinge_dof])
         hess[dof, dof] += 2.0 * self.cfg.velocity
+        grad[nv : nv + 6] += 2.0 * self.cfg.root_velocity * (d.qvel[:6] - self.ref.qvel[frame, :6])
+        hess[nv : nv + 6, nv : nv + 6] += 2.0 * self.cfg.root_velocity * np.eye(6)
         return grad, hess
 
 
@@ -256,7 +263,8 @@ def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nda
 
 def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: CharacterState,
            ref_targets: np.ndarray, cfg: PolishConfig, fall_head_error: float, name: str = "",
-           log: TextIO | None = None, lqr: LqrConfig | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
+           log: TextIO | None = None, lqr: LqrConfig | None = None,
+           searcher: Searcher | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
     """iLQR from the open-loop path ``targets`` (F, nu) played from ``start`` at the clip's frame 0 (see the
     module docstring): over the whole path at once (``cfg.window`` 0), or window by window, each ``cfg.window``
     frames from the path's current state at its first frame, the next ``cfg.stride`` frames later; each window's
@@ -265,7 +273,9 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
     A window starts where the windows before left the character, off the searched path, whose open-loop targets
     from there soon fall (jog: every window's starting cost rose tenfold). So with ``lqr`` the frames no window has
     changed yet start from the searched path tracked by its time-varying LQR (:mod:`samcon.lqr`, these weights):
-    ``u*_t + clip(K_t (x_t - x*_t))``.
+    ``u*_t + clip(K_t (x_t - x*_t))``. With ``searcher`` (which searches a stretch of frames from a state, as
+    SAMCON does, and returns its targets, or None if it fell) the frames after the previous window's look-ahead are
+    searched anew from where that look-ahead left the character (the LQR start where it fell).
 
     Returns:
         The polished targets (F, nu) (``targets`` itself if the polished path costs more or falls where it did
@@ -273,54 +283,76 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
     """
     t0 = time.perf_counter()
     cost = BodyCost(humanoid, cfg, ref, ref_targets, fall_head_error)
-    frames = len(targets)
     try:
-        states = nominal_states(humanoid, start, targets)
-        before = cost.path_cost(states, targets, 0)
-        new = targets.copy()
-        window = cfg.window or frames
-        stride = cfg.stride or window
-        firsts = list(range(0, max(1, frames - window + stride), stride))
-        windows = []
-        searched, track = states.copy(), None
-        if lqr is not None and cfg.window:
-            a, b = linearise(humanoid, searched, targets, lqr.eps)
-            q = np.diag(state_weights(humanoid, lqr))
-            track = riccati(a, b, q, lqr.control * np.eye(humanoid.model.nu), q)[0]
-        changed = 0  # frames before this one have been a window's to change
-        for j, s in enumerate(firsts):
-            e = min(frames, s + window)
-            tail = min(frames, e + cfg.lookahead) if cfg.window else e
-            init = new[s:tail]
-            if track is not None and tail > changed:
-                gain = np.zeros((tail - s, *track.shape[1:]))
-                gain[max(0, changed - s) :] = track[max(s, changed) : tail]
-                base = np.where((np.arange(s, tail) >= changed)[:, None], targets[s:tail], new[s:tail])
-                _, applied, blown = forward_pass(humanoid, states[s], searched[s : tail + 1], base,
-                                                 np.zeros_like(base), gain, np.zeros(1), lqr.limit)  # fmt: skip
-                init = init if blown[0] else applied[0]
-            label = f"{name} polish frames {s}-{e}"
-            new[s:tail], states[s : tail + 1], hist = _ilqr(humanoid, cost, states[s], init, s, cfg, label, log,
-                                                            free=e - s)  # fmt: skip
-            changed = max(changed, e)
-            windows.append({"first": s, "end": e, "iterations": hist})
+        before = cost.path_cost(nominal_states(humanoid, start, targets), targets, 0)
+        best, after, windows, passes = targets, before, [], []
+        for p in range(cfg.passes):
+            new, pass_windows = _sweep(humanoid, cost, start, best, cfg, lqr, searcher, f"{name} pass {p + 1}", log,
+                                       t0)  # fmt: skip
+            windows += pass_windows
+            result = cost.path_cost(nominal_states(humanoid, start, new), new, 0)
+            better = result.total < after.total and (result.fell_at < 0 or after.fell_at >= 0)
+            passes.append({"cost": result.total, "fell_at": result.fell_at, "kept": better})
+            if better:
+                best, after = new, result
             if log is not None:
-                print(f"{label} ({j + 1}/{len(firsts)}): cost {hist[0]['cost']:.4g} -> {hist[-1]['cost']:.4g} in "
-                      f"{len(hist) - 1} steps, {time.perf_counter() - t0:.0f} s", file=log, flush=True)  # fmt: skip
-        final_states = nominal_states(humanoid, start, new)
-        after = cost.path_cost(final_states, new, 0)
-        worse = after.total >= before.total or (after.fell_at >= 0 and before.fell_at < 0)
+                print(f"{name}: polish pass {p + 1}/{cfg.passes}: cost {result.total:.4g}"
+                      f"{'' if better else ' (dearer or fell: dropped)'}", file=log, flush=True)  # fmt: skip
+        worse = best is targets
     finally:
         cost.close()
     summary = {
         "cost_before": before.total, "cost_after": after.total, "kept": not worse,
         "body_rms_mm_before": 1000 * float(np.sqrt(before.body.mean())),
         "body_rms_mm_after": 1000 * float(np.sqrt(after.body.mean())),
-        "windows": windows, "seconds": time.perf_counter() - t0,
+        "passes": passes, "windows": windows, "seconds": time.perf_counter() - t0,
     }  # fmt: skip
     if log is not None:
         print(f"{name}: polished, cost {before.total:.4g} -> {after.total:.4g}, body rms "
               f"{summary['body_rms_mm_before']:.1f} -> {summary['body_rms_mm_after']:.1f} mm"
               f"{' (worse: the searched path is kept)' if worse else ''}, {summary['seconds']:.0f} s", file=log,
               flush=True)  # fmt: skip
-    return (targets if worse else new), summary
+    return best, summary
+
+
+def _sweep(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.ndarray, cfg: PolishConfig,
+           lqr: LqrConfig | None, searcher: Searcher | None, name: str, log: TextIO | None,
+           t0: float) -> tuple[np.ndarray, list]:  # fmt: skip
+    """One pass of windows over the path (see :func:`polish`): its new targets and per window its iterations."""
+    frames = len(targets)
+    states = nominal_states(humanoid, start, targets)
+    new = targets.copy()
+    window = cfg.window or frames
+    stride = cfg.stride or window
+    firsts = list(range(0, max(1, frames - window + stride), stride))
+    windows = []
+    searched, track = states.copy(), None
+    if lqr is not None and cfg.window:
+        a, b = linearise(humanoid, searched, targets, lqr.eps)
+        q = np.diag(state_weights(humanoid, lqr))
+        track = riccati(a, b, q, lqr.control * np.eye(humanoid.model.nu), q)[0]
+    changed = 0  # frames before this one have been a window's to change
+    played = 0  # frames before this one have been played in a window's cost
+    for j, s in enumerate(firsts):
+        e = min(frames, s + window)
+        tail = min(frames, e + cfg.lookahead) if cfg.window else e
+        init = new[s:tail]
+        found = searcher(played, tail, states[played]) if searcher is not None and 0 < played < tail else None
+        if found is not None:
+            init = np.concatenate([new[s:played], found])
+        elif track is not None and tail > changed:
+            gain = np.zeros((tail - s, *track.shape[1:]))
+            gain[max(0, changed - s) :] = track[max(s, changed) : tail]
+            base = np.where((np.arange(s, tail) >= changed)[:, None], targets[s:tail], new[s:tail])
+            _, applied, blown = forward_pass(humanoid, states[s], searched[s : tail + 1], base, np.zeros_like(base),
+                                             gain, np.zeros(1), lqr.limit)  # fmt: skip
+            init = init if blown[0] else applied[0]
+        label = f"{name} frames {s}-{e}"
+        new[s:tail], states[s : tail + 1], hist = _ilqr(humanoid, cost, states[s], init, s, cfg, label, log,
+                                                        free=e - s)  # fmt: skip
+        changed, played = max(changed, e), max(played, tail)
+        windows.append({"first": s, "end": e, "iterations": hist, "searched": found is not None})
+        if log is not None:
+            print(f"{label} ({j + 1}/{len(firsts)}): cost {hist[0]['cost']:.4g} -> {hist[-1]['cost']:.4g} in "
+                  f"{len(hist) - 1} steps, {time.perf_counter() - t0:.0f} s", file=log, flush=True)  # fmt: skip
+    return new, windows

@@ -249,7 +249,19 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
             plan = ClipPlan(traj.targets, _plan_bounds(traj, m), *anchored(traj, fb, *fit_samples(again, fb, extra, m)))
     if cfg.polish.iterations:
         # The open-loop path is final here; the regressed feedback stays anchored on the searched one.
-        traj = polished(traj, cfg, humanoid, library, clip, log)
+        searches = {"samples": 0}
+
+        def searcher(first: int, end: int, state: np.ndarray) -> np.ndarray | None:
+            if not (cfg.polish.search and first in grid and end in grid):
+                return None
+            quiet = {**common, "progress": None}
+            path = samcon(humanoid, library, clip, frames, search, cfg.cost, rng, start_frame=first, end_frame=end,
+                          start=state, **quiet)  # fmt: skip
+            searches["samples"] += path.samples
+            return None if path.segment_terms["fallen"].sum() else path.targets
+
+        traj = polished(traj, cfg, humanoid, library, clip, log, searcher)
+        traj.samples += searches["samples"]
         plan.targets = traj.targets
     visit_rounds = []
     for it in range(fb.visit_iterations):
@@ -292,14 +304,14 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
 
 
 def polished(traj: Trajectory, cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
-             log: Any) -> Trajectory:  # fmt: skip
+             log: Any, searcher: Any = None) -> Trajectory:  # fmt: skip
     """``traj`` (from the clip's start) after the iLQR polish (:mod:`samcon.polish`), its per-segment record
     recomputed along the polished path; the polish's seconds count in the oracle's."""
     hinge = humanoid.hinge_qpos
     ref = reference_frames(library, clip, traj.frames)
     ref_targets = ref.qpos[1:, hinge]
     targets, summary = polish(humanoid, traj.start_state, traj.targets, ref, ref_targets, cfg.polish,
-                              cfg.cost.fall_head_error, traj.clip, log, lqr=cfg.lqr)  # fmt: skip
+                              cfg.cost.fall_head_error, traj.clip, log, lqr=cfg.lqr, searcher=searcher)  # fmt: skip
     states = replay(humanoid, traj.start_state, targets, cfg.gym.max_speed)
     m = humanoid.model
     fk = ForwardKinematics(humanoid, threads=0)
@@ -314,7 +326,7 @@ def polished(traj: Trajectory, cfg: SamconConfig, humanoid: Humanoid, library: M
     def mean(values: np.ndarray) -> np.ndarray:
         return np.bincount(seg, weights=values) / count
 
-    summary["windows"] = [{k: w[k] for k in ("first", "end")} | {"steps": len(w["iterations"]) - 1}
+    summary["windows"] = [{k: w[k] for k in ("first", "end", "searched")} | {"steps": len(w["iterations"]) - 1}
                           for w in summary["windows"]]  # fmt: skip
     return replace(
         traj, targets=targets,

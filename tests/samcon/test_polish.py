@@ -70,7 +70,7 @@ def test_body_cost_derivatives_match_finite_differences(walk) -> None:
     judge's body positions), at a state off the reference."""
     humanoid, library = walk
     m = humanoid.model
-    cfg = PolishConfig(iterations=1, body=100.0, velocity=0.01)
+    cfg = PolishConfig(iterations=1, body=100.0, velocity=0.01, root_velocity=0.5)
     ref = reference_frames(library, 0, 4)
     cost = BodyCost(humanoid, cfg, ref, ref.qpos[1:, humanoid.hinge_qpos], 0.25)
     try:
@@ -129,3 +129,23 @@ def test_polish_lowers_the_cost_and_replays(walk) -> None:
         cost.close()
     assert replayed.total == summary["cost_after"]
     assert replayed.fell_at == -1
+
+
+def test_windows_ask_the_searcher_for_the_frames_after_the_last_look_ahead(walk) -> None:
+    """With a searcher, each window's frames beyond what earlier windows played start from its answer, asked for
+    from the state where the last look-ahead ended (its time field says which frame); None falls back."""
+    humanoid, library = walk
+    frames = 24
+    ref = reference_frames(library, 0, frames)
+    ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
+    start = start_state(library, humanoid, 0)
+    calls = []
+
+    def searcher(first: int, end: int, state: np.ndarray) -> np.ndarray | None:
+        calls.append((first, end, round(state[0] / library.dt)))
+        return None if first == 16 else ref_targets[first:end]
+
+    cfg = PolishConfig(iterations=1, window=8, stride=4, lookahead=4)
+    _, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, searcher=searcher)
+    assert calls == [(12, 16, 12), (16, 20, 16), (20, 24, 20)]
+    assert [w["searched"] for w in summary["windows"]] == [False, True, False, True, False]

@@ -32,8 +32,9 @@ def test_debug_run_writes_its_run_directory(run: Path) -> None:
     results = json.loads((run / "results.json").read_text())
     assert info["learner"] == "samcon" and info["policy_file"] == "samcon.h5" and info["motions"] == ["walk"]
     walk = results["clips"]["walk"]
-    # Two segments of 3 frames, 8 samples x 2 rounds each, plus one refinement search of the same size.
-    assert walk["frames"] == 6 and walk["samples"] == 2 * 2 * 8 * 2 == info["samples"]
+    # Two segments of 3 frames, 8 samples x 2 rounds each, plus one refinement search of the same size, plus the
+    # polish's search of the second segment.
+    assert walk["frames"] == 6 and walk["samples"] == 2 * 2 * 8 * 2 + 2 * 8 == info["samples"]
     # The feedback's extra search from frame 3 (the only other segment start): one segment, counted apart.
     assert walk["feedback_search_samples"] == 1 * 2 * 8 and walk["feedback_search_minutes"] > 0
     log = (run / "progress.log").read_text()
@@ -53,12 +54,13 @@ def test_debug_run_writes_its_run_directory(run: Path) -> None:
         ref_offset = f["clips/walk/ref_offset"][()]
     assert ref_offset.shape == (2, 28) and np.count_nonzero(ref_offset[:, [14, 21]]) == 4  # right_hip_x, left_hip_x
     assert np.count_nonzero(ref_offset) == 4
-    # The iLQR polish of the debug config: windows at frames 0 and 2 (4 frames each, the second cut at 6); the
-    # stored targets are the polished path's and replay to its stored segment-end states.
+    # The iLQR polish of the debug config: windows at frames 0 and 3, the second's searched anew from where the
+    # first left the character (one segment, counted in the samples above); the stored targets are the polished
+    # path's and replay to its stored segment-end states.
     polish = walk["polish"]
-    assert [(w["first"], w["end"]) for w in polish["windows"]] == [(0, 4), (2, 6)]
+    assert [(w["first"], w["end"], w["searched"]) for w in polish["windows"]] == [(0, 3, False), (3, 6, True)]
     assert "walk: polished, cost" in log and polish["seconds"] > 0
-    assert polish["cost_after"] <= polish["cost_before"] or not polish["kept"]
+    assert len(polish["passes"]) == 1 and polish["passes"][0]["kept"] == polish["kept"]
     from samcon.search import replay, start_state
 
     humanoid = Humanoid()
