@@ -5,24 +5,31 @@ SAMCON is greedy in time: it keeps, segment by segment, the samples that track t
 best, so it cannot give up a little now to be much better a second later; where a clip's root swings out and back
 (session 17: kick, punch, dance_a) the search follows the swing late and never wins the distance back. iLQR (Li &
 Todorov 2004; with the regularisation and line search of Tassa, Erez & Todorov 2012, as MuJoCo MPC's iLQG uses it)
-optimises the whole path at once from the simulator's own derivatives:
+optimises the targets of every frame together from the simulator's own derivatives:
 
 1. **Linearise** the path (:func:`samcon.lqr.linearise`: ``A_t``, ``B_t`` per control step from MuJoCo's
    ``mjd_transitionFD``).
-2. **Cost** of the state after control step t: ``w_body`` x the mean over the 15 bodies of the squared distance of
-   the body frame origin from the reference's (the square of the judge's MPJPE-g per body), ``w_vel`` x the squared
-   hinge velocity error, and ``w_control`` x the squared offset of the targets from the reference's next-frame
-   hinge angles. Its gradient and Gauss-Newton Hessian in the state's tangent space come from MuJoCo's body
-   Jacobians (``mj_jacBody``).
+2. **Cost** of the state after control step t: ``polish.body`` x the mean over the 15 bodies of the squared
+   distance of the body frame origin from the reference's (the square of the judge's MPJPE-g per body),
+   ``polish.velocity`` and ``polish.root_velocity`` x the squared hinge and root velocity errors, and
+   ``polish.control`` x the squared offset of the targets from the reference's next-frame hinge angles. Its
+   gradient and Gauss-Newton Hessian in the state's tangent space come from MuJoCo's body Jacobians
+   (``mj_jacBody``).
 3. **Backward pass**: the Riccati-like recursion of iLQR gives an open-loop change ``k_t`` and a feedback ``K_t`` per
    step (``Q_uu`` regularised by ``mu``, raised when it is not positive definite or a step fails).
 4. **Forward pass**: ``u_t = u_t + alpha k_t + K_t (x_t' - x_t)`` rolled out in the gym's own physics
    (:class:`common.sim.sim.BatchedSim`, every step size ``alpha`` a character of one batch); the cheapest rollout
    that lowers the true cost and does not fall (the evaluator's head rule) is the new path. Its targets are the
    ones it applied, so the result is again an open-loop path that replays bit-exactly from the clip's start.
+5. **Windows** (``polish.window``): over a whole 512-frame path at once the rollouts are too sensitive to the early
+   frames' changes (crawl: 92 to 76 mm MPJPE-g, then no step size lowered the cost), so the path is polished in
+   windows, each from the state the windows before left, its cost counting ``lookahead`` frames more. Frames no
+   window has changed yet start from the searched path tracked by its time-varying LQR (:mod:`samcon.lqr`), or,
+   with ``polish.search``, from a SAMCON search from where the last look-ahead left the character: the searched
+   path's own open-loop targets, played from a state off it, fall within a second.
 
 A clip whose reference needs force no contact gives (``samcon.feasibility``) keeps an error there whatever the
-targets; iLQR spends it where it costs least over the whole clip instead of where the greedy search left it.
+targets; iLQR spends it where it costs least over the window instead of where the greedy search left it.
 """
 
 from __future__ import annotations
