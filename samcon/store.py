@@ -9,7 +9,9 @@ and ``ref_limit`` (), with ``optimise.offsets`` also ``ref_offset`` (S, nu) (see
 with ``feedback.index: phase`` also ``plan_bounds`` (the first cycle's segments, which gain, bias and anchors index),
 with ``lqr.enabled`` a group ``lqr`` (attribute ``limit``) of groups ``0``, ``1``, ... (the path from the clip's start
 first; attribute ``first``) with ``targets``, ``qpos``, ``qvel``, ``gain`` and, where a clip has several paths,
-``cost_to_go`` (see :class:`samcon.lqr.LqrPath`), and attributes ``samples``, ``seconds``. Written to a temporary
+``cost_to_go`` (see :class:`samcon.lqr.LqrPath`), and attributes ``samples``, ``seconds``. With ``polish``
+(:mod:`samcon.polish`) ``targets``, ``offsets``, ``segment_cost``, ``terms`` and ``end_states`` are the polished
+path's (each segment's offset then its mean). Written to a temporary
 file and renamed.
 """
 
