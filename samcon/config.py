@@ -388,7 +388,9 @@ class PolishConfig:
             tracked by its LQR (which holds 30-60 frames from the states the windows leave; jog, run and backflip
             then began windows fallen). Its samples count in the clip's.
         passes: Sweeps of windows over the path, each from the best path so far (a pass that ends dearer or falls
-            where the best did not is dropped).
+            where the best did not is dropped); 0: none.
+        whole_iterations: Then iLQR iterations over the whole path at once, from the best so far (each step lowers
+            the whole path's cost, so it keeps what the windows gained and rescues nothing they lost).
         body: Weight of the mean squared body position error (m^2; 100: 0.1 m costs 1 per frame).
         velocity: Weight of the squared hinge velocity error ((rad/s)^2).
         root_velocity: Weight of the squared error of the root's velocities (MuJoCo's free joint: linear in the
@@ -408,6 +410,7 @@ class PolishConfig:
     stride: int = 0
     lookahead: int = 0
     passes: int = 1
+    whole_iterations: int = 0
     search: bool = False
     body: float = 100.0
     velocity: float = 0.001
@@ -426,8 +429,8 @@ class PolishConfig:
         object.__setattr__(self, "alphas", tuple(float(a) for a in self.alphas))
         if self.iterations < 0:
             raise ValueError(f"polish.iterations must be >= 0, got {self.iterations}")
-        if self.passes < 1:
-            raise ValueError(f"polish.passes must be >= 1, got {self.passes}")
+        if self.passes < 0 or self.whole_iterations < 0:
+            raise ValueError(f"polish: need passes, whole_iterations >= 0, got {self.passes}, {self.whole_iterations}")
         if self.lookahead < 0:
             raise ValueError(f"polish.lookahead must be >= 0, got {self.lookahead}")
         if self.window < 0 or self.stride < 0 or (self.window and self.stride > self.window):

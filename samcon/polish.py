@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, TextIO
 
 import mujoco
@@ -305,6 +305,16 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
             if log is not None:
                 print(f"{name}: polish pass {p + 1}/{cfg.passes}: cost {result.total:.4g}"
                       f"{'' if better else ' (dearer or fell: dropped)'}", file=log, flush=True)  # fmt: skip
+        if cfg.whole_iterations:
+            # Then the whole path at once from the best so far: every step lowers its cost (none falls where it did
+            # not), so this never undoes the windows' gain.
+            whole, _, hist = _ilqr(humanoid, cost, start, best, 0, replace(cfg, iterations=cfg.whole_iterations),
+                                   f"{name} whole path", log)  # fmt: skip
+            passes.append({"whole_steps": len(hist) - 1, "cost": hist[-1]["cost"], "kept": len(hist) > 1})
+            if len(hist) > 1:
+                best, after = whole, cost.path_cost(nominal_states(humanoid, start, whole), whole, 0)
+            if log is not None:
+                print(f"{name}: whole path, {len(hist) - 1} steps: cost {after.total:.4g}", file=log, flush=True)
         worse = best is targets
     finally:
         cost.close()

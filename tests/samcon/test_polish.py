@@ -110,16 +110,19 @@ def test_body_cost_derivatives_match_finite_differences(walk) -> None:
 
 
 def test_polish_lowers_the_cost_and_replays(walk) -> None:
-    """From the reference's own targets (open-loop playback) on walk's first 24 frames, two windows of iLQR lower
-    the body error, and the targets returned replay to the cost the polish reports."""
+    """From the reference's own targets (open-loop playback) on walk's first 24 frames, two windows of iLQR and two
+    iterations on the whole path lower the body error, and the targets returned replay to the cost the polish
+    reports."""
     humanoid, library = walk
     frames = 24
     ref = reference_frames(library, 0, frames)
     ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
     start = start_state(library, humanoid, 0)
-    cfg = PolishConfig(iterations=3, window=16, stride=8, lookahead=4)
+    cfg = PolishConfig(iterations=3, window=16, stride=8, lookahead=4, whole_iterations=2)
     targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25)
     assert summary["kept"] and summary["cost_after"] < summary["cost_before"]
+    # the window pass, then the whole path from its result: never dearer than the pass it started from
+    assert summary["passes"][-1]["whole_steps"] <= 2 and summary["cost_after"] <= summary["passes"][0]["cost"]
     assert [w["first"] for w in summary["windows"]] == [0, 8]
     assert not np.array_equal(targets, ref_targets)
     cost = BodyCost(humanoid, cfg, ref, ref_targets, 0.25)
