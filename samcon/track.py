@@ -41,7 +41,7 @@ from samcon.cost import COST_TERMS, tracking_cost
 from samcon.feedback import ClipPlan, FeedbackPolicy, fit_linear, open_loop_policy
 from samcon.lqr import evaluation_policy, grow_paths, play_until_falls
 from samcon.optimise import optimise_gains, plot_history, reduced_indices
-from samcon.polish import polish
+from samcon.polish import Searcher, polish
 from samcon.search import SearchAbandoned, Trajectory, cycle_frames, horizon, reference_frames, replay, samcon
 
 LEARNER = "samcon"
@@ -252,7 +252,7 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
         searches = {"samples": 0}
 
         def searcher(first: int, end: int, state: np.ndarray) -> np.ndarray | None:
-            if not (cfg.polish.search and first in grid and end in grid):
+            if not (first in grid and end in grid):
                 return None
             quiet = {**common, "progress": None}
             path = samcon(humanoid, library, clip, frames, search, cfg.cost, rng, start_frame=first, end_frame=end,
@@ -260,7 +260,7 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
             searches["samples"] += path.samples
             return None if path.segment_terms["fallen"].sum() else path.targets
 
-        traj = polished(traj, cfg, humanoid, library, clip, log, searcher)
+        traj = polished(traj, cfg, humanoid, library, clip, log, searcher if cfg.polish.search else None)
         traj.samples += searches["samples"]
         plan.targets = traj.targets
     visit_rounds = []
@@ -304,14 +304,19 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
 
 
 def polished(traj: Trajectory, cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
-             log: Any, searcher: Any = None) -> Trajectory:  # fmt: skip
+             log: Any, searcher: Searcher | None = None) -> Trajectory:  # fmt: skip
     """``traj`` (from the clip's start) after the iLQR polish (:mod:`samcon.polish`), its per-segment record
-    recomputed along the polished path; the polish's seconds count in the oracle's."""
+    recomputed along the polished path (unchanged where the polish was dropped); the polish's seconds count in the
+    oracle's."""
     hinge = humanoid.hinge_qpos
     ref = reference_frames(library, clip, traj.frames)
     ref_targets = ref.qpos[1:, hinge]
     targets, summary = polish(humanoid, traj.start_state, traj.targets, ref, ref_targets, cfg.polish,
                               cfg.cost.fall_head_error, traj.clip, log, lqr=cfg.lqr, searcher=searcher)  # fmt: skip
+    summary["windows"] = [{k: w[k] for k in ("first", "end", "searched")} | {"steps": len(w["iterations"]) - 1}
+                          for w in summary["windows"]]  # fmt: skip
+    if not summary["kept"]:
+        return replace(traj, seconds=traj.seconds + summary["seconds"], polish=summary)
     states = replay(humanoid, traj.start_state, targets, cfg.gym.max_speed)
     m = humanoid.model
     fk = ForwardKinematics(humanoid, threads=0)
@@ -326,8 +331,6 @@ def polished(traj: Trajectory, cfg: SamconConfig, humanoid: Humanoid, library: M
     def mean(values: np.ndarray) -> np.ndarray:
         return np.bincount(seg, weights=values) / count
 
-    summary["windows"] = [{k: w[k] for k in ("first", "end", "searched")} | {"steps": len(w["iterations"]) - 1}
-                          for w in summary["windows"]]  # fmt: skip
     return replace(
         traj, targets=targets,
         offsets=np.stack([(targets - ref_targets)[seg == k].mean(axis=0) for k in range(len(count))]),
