@@ -51,9 +51,9 @@ from samcon.lqr import linearise, nominal_states, riccati, state_weights
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 Step = tuple[np.ndarray, np.ndarray, float, float]
+"""k (F, nu), K (F, nu, n), and the expected change's linear and quadratic coefficients."""
 Searcher = Callable[[int, int, np.ndarray], "np.ndarray | None"]
 """(first frame, end frame, full state at the first) -> targets of frames first..end-1, or None."""
-"""k (F, nu), K (F, nu, n), and the expected change's linear and quadratic coefficients."""
 
 
 @dataclass
