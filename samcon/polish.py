@@ -290,14 +290,18 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
     """
     t0 = time.perf_counter()
     cost = BodyCost(humanoid, cfg, ref, ref_targets, fall_head_error)
+
+    def replayed(path: np.ndarray) -> PathCost:  # the whole path replayed from the clip's start, as judged
+        return cost.path_cost(nominal_states(humanoid, start, path), path, 0)
+
     try:
-        before = cost.path_cost(nominal_states(humanoid, start, targets), targets, 0)
+        before = replayed(targets)
         best, after, windows, passes = targets, before, [], []
         for p in range(cfg.passes):
             new, pass_windows = _sweep(humanoid, cost, start, best, cfg, lqr, searcher, f"{name} pass {p + 1}", log,
                                        t0)  # fmt: skip
             windows += pass_windows
-            result = cost.path_cost(nominal_states(humanoid, start, new), new, 0)
+            result = replayed(new)
             better = result.total < after.total and (result.fell_at < 0 or after.fell_at >= 0)
             passes.append({"cost": result.total, "fell_at": result.fell_at, "kept": better})
             if better:
@@ -312,7 +316,7 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
                                    f"{name} whole path", log)  # fmt: skip
             passes.append({"whole_steps": len(hist) - 1, "cost": hist[-1]["cost"], "kept": len(hist) > 1})
             if len(hist) > 1:
-                best, after = whole, cost.path_cost(nominal_states(humanoid, start, whole), whole, 0)
+                best, after = whole, replayed(whole)
             if log is not None:
                 print(f"{name}: whole path, {len(hist) - 1} steps: cost {after.total:.4g}", file=log, flush=True)
         worse = best is targets
