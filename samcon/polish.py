@@ -46,7 +46,8 @@ from common.character.humanoid import Humanoid
 from common.character.kinematics import ForwardKinematics
 from common.character.state import CharacterState
 from common.sim.sim import BatchedSim
-from samcon.config import LqrConfig, PolishConfig
+from samcon.config import CostConfig, LqrConfig, PolishConfig
+from samcon.cost import tracking_cost
 from samcon.lqr import linearise, nominal_states, riccati, state_weights
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -76,7 +77,7 @@ class BodyCost:
     def __init__(self, humanoid: Humanoid, cfg: PolishConfig, ref: CharacterState, ref_targets: np.ndarray,
                  fall_head_error: float) -> None:  # fmt: skip
         self.humanoid, self.cfg, self.ref, self.ref_targets = humanoid, cfg, ref, ref_targets
-        self.fall_head_error = fall_head_error
+        self._judge = CostConfig(fall_head_error=fall_head_error)  # the search's terms and its head rule
         m = humanoid.model
         self._ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in humanoid.body_names]
         self._hinge_dof = humanoid.hinge_dof
@@ -93,12 +94,11 @@ class BodyCost:
         nq, nv = h.nq, h.nv
         sim = self._fk(states[1:, 1 : 1 + nq], states[1:, 1 + nq : 1 + nq + nv])
         ref = self.ref[first + 1 : first + len(states)]
-        body = np.mean(np.sum((sim.body_pos - ref.body_pos) ** 2, axis=-1), axis=-1)
+        _, terms = tracking_cost(h, self._judge, sim, ref)
+        body, fallen = terms["body_pos"], terms["fallen"]
         vel = np.sum((sim.qvel[:, self._hinge_dof] - ref.qvel[:, self._hinge_dof]) ** 2, axis=-1)
         root_vel = np.sum((sim.qvel[:, :6] - ref.qvel[:, :6]) ** 2, axis=-1)
         ctrl = np.sum((targets - self.ref_targets[first : first + len(targets)]) ** 2, axis=-1)
-        head = h.head_index
-        fallen = np.abs(sim.body_pos[:, head, 2] - ref.body_pos[:, head, 2]) > self.fall_head_error
         total = float(np.sum(self.cfg.body * body + self.cfg.velocity * vel + self.cfg.root_velocity * root_vel
                              + self.cfg.control * ctrl))  # fmt: skip
         return PathCost(total, body, int(np.argmax(fallen)) + 1 if fallen.any() else -1)
