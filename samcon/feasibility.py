@@ -171,8 +171,11 @@ def com_and_clearance(humanoid: Humanoid, qpos: np.ndarray) -> tuple[np.ndarray,
     return com, BodyGeometry(humanoid).lowest_points(body_pos, body_rot).min(axis=-1)
 
 
-def residual_force(force: np.ndarray, contact: np.ndarray, friction: float) -> np.ndarray:
-    """The part of the external force no floor contact (normal +z, friction coefficient mu) can supply.
+def residual_vector(force: np.ndarray, contact: np.ndarray, friction: float) -> np.ndarray:
+    """The part of the external force no floor contact (normal +z, friction coefficient mu) can supply, as a vector.
+
+    Without contact, or when F_z < 0 (the floor cannot pull), all of F. With contact and F_z >= 0 the floor gives F_z
+    and at most mu F_z horizontally, so the rest is horizontal, along F_h, of length max(0, |F_h| - mu F_z).
 
     Args:
         force: Net external force. Shape: (T, 3).
@@ -180,11 +183,38 @@ def residual_force(force: np.ndarray, contact: np.ndarray, friction: float) -> n
         friction: mu >= 0.
 
     Returns:
-        Shape: (T,), in the units of ``force``: |F| without contact or when F_z < 0, else max(0, |F_h| - mu F_z).
+        Shape: (T, 3), in the units of ``force``.
     """
-    norm = np.linalg.norm(force, axis=-1)
-    outside_cone = np.maximum(0.0, np.linalg.norm(force[:, :2], axis=-1) - friction * force[:, 2])
-    return np.where(contact & (force[:, 2] >= 0.0), outside_cone, norm)
+    horizontal = np.linalg.norm(force[:, :2], axis=-1)
+    excess = np.maximum(0.0, horizontal - friction * force[:, 2])
+    share = np.divide(excess, horizontal, out=np.zeros_like(excess), where=horizontal > 0.0)
+    in_cone = np.concatenate([force[:, :2] * share[:, None], np.zeros((len(force), 1))], axis=1)
+    return np.where((contact & (force[:, 2] >= 0.0))[:, None], in_cone, force)
+
+
+def residual_force(force: np.ndarray, contact: np.ndarray, friction: float) -> np.ndarray:
+    """|:func:`residual_vector`|: |F| without contact or when F_z < 0, else max(0, |F_h| - mu F_z). Shape: (T,)."""
+    return np.linalg.norm(residual_vector(force, contact, friction), axis=-1)
+
+
+def external_force(humanoid: Humanoid, com: np.ndarray, clearance: np.ndarray, dt: float, step: int,
+                   tolerance: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Measure 1's net external force and contact flag for frames h..h+T-1 (see the module docstring).
+
+    Args:
+        com: Whole-body centre of mass per frame (:func:`com_and_clearance`). Shape: (T + 2h, 3), m.
+        clearance: Lowest geom point per frame. Shape: (T + 2h,), m.
+        dt: Grid step in s.
+        step: h in grid steps.
+        tolerance: Contact tolerance in m.
+
+    Returns:
+        F = m (a_com - g) (T, 3), N, world; whether any frame of [k - h, k + h] touches the floor (T,).
+    """
+    acc = (com[2 * step :] - 2.0 * com[step:-step] + com[: -2 * step]) / (step * dt) ** 2
+    force = total_mass(humanoid) * (acc - np.asarray(humanoid.model.opt.gravity))
+    touching = np.lib.stride_tricks.sliding_window_view(clearance <= tolerance, 2 * step + 1)
+    return force, touching.any(axis=-1)
 
 
 def position_second_difference(humanoid: Humanoid, qpos: np.ndarray, step: int, dt: float) -> np.ndarray:
@@ -279,10 +309,7 @@ def measure(humanoid: Humanoid, qpos: np.ndarray, qvel: np.ndarray, dt: float, s
     mu = model_friction(humanoid) if friction is None else friction
     weight = body_weight(humanoid)
     com, clearance = com_and_clearance(humanoid, qpos)
-    acc = (com[2 * step :] - 2.0 * com[step:-step] + com[: -2 * step]) / (step * dt) ** 2
-    force = total_mass(humanoid) * (acc - np.asarray(humanoid.model.opt.gravity))
-    touching = np.lib.stride_tricks.sliding_window_view(clearance <= tolerance, 2 * step + 1)
-    contact = touching.any(axis=-1)
+    force, contact = external_force(humanoid, com, clearance, dt, step, tolerance)
     inner = slice(step, len(qpos) - step)
     qacc = position_second_difference(humanoid, qpos, step, dt)
     qfrc = inverse_dynamics(humanoid, qpos[inner], qvel[inner], qacc)

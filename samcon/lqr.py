@@ -50,24 +50,26 @@ from samcon.search import Trajectory
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
-def nominal_states(humanoid: Humanoid, start_state: np.ndarray, targets: np.ndarray) -> np.ndarray:
+def nominal_states(humanoid: Humanoid, start_state: np.ndarray, targets: np.ndarray,
+                   forces: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
     """The full states a path passes through, replayed as the gym steps (:class:`common.sim.sim.BatchedSim`), so
-    that they are bit-exactly those of an evaluator episode that plays ``targets`` from ``start_state``.
-    Shape: (F + 1, nstate)."""
-    sim = BatchedSim(humanoid, 1, threads=0)
+    that they are bit-exactly those of an evaluator episode that plays ``targets`` from ``start_state`` (with
+    ``forces`` (F, nv), the generalised force of every step too: :mod:`samcon.assist`). Shape: (F + 1, nstate)."""
+    sim = BatchedSim(humanoid, 1, threads=0, applied=forces is not None)
     try:
         sim.state[0] = start_state
         out = np.zeros((len(targets) + 1, len(start_state)))
         out[0] = start_state
         for f, u in enumerate(targets):
-            sim.step(u[None])
+            sim.step(u[None], None if forces is None else forces[f])
             out[f + 1] = sim.state[0]
     finally:
         sim.close()
     return out
 
 
-def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: float) -> tuple[np.ndarray, ...]:
+def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: float,
+              forces: np.ndarray | None = None) -> tuple[np.ndarray, ...]:  # fmt: skip
     """Per control step f, the Jacobians of the next state's tangent coordinates with respect to those of the state
     at f and to the targets held over the step (see the module docstring).
 
@@ -75,6 +77,7 @@ def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: 
         states: Full MuJoCo states at every frame (:func:`nominal_states`). Shape: (F + 1, nstate).
         targets: PD targets of every frame. Shape: (F, nu).
         eps: Finite-difference step.
+        forces: The generalised force held over every step (None: 0). Shape: (F, nv).
 
     Returns:
         A: Shape: (F, 2 nv, 2 nv). B: Shape: (F, 2 nv, nu).
@@ -87,6 +90,7 @@ def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: 
     for f in range(frames):
         mujoco.mj_setState(m, d, states[f], _FULL)
         d.ctrl[:] = targets[f]
+        d.qfrc_applied[:] = 0.0 if forces is None else forces[f]
         a_f, b_f = np.eye(n), np.zeros((n, nu))
         for _ in range(humanoid.physics.substeps):
             mujoco.mjd_transitionFD(m, d, eps, True, a, b, None, None)

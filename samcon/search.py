@@ -46,6 +46,10 @@ class SearchAbandoned(Exception):
 
 Guide = Callable[[int, np.ndarray], np.ndarray]
 """(segment k, feedback features (n, D)) -> base offsets (n, nu)."""
+AssistLaw = Callable[[int, np.ndarray, np.ndarray], np.ndarray]
+"""(frame f, qpos (n, nq), qvel (n, nv) at f) -> the generalised force held over step f -> f + 1, (n, nv)."""
+Assist = Callable[[MotionLibrary, int, int], AssistLaw]
+"""(library, clip, steps) -> the law of a clip's first ``steps`` steps (:class:`samcon.assist.RootAssist`)."""
 Progress = Callable[[int, int, float, float, "int | None"], None]
 """(segment k, segments, cost of the best kept sample, seconds so far, the segment a backtrack returns to or None)."""
 
@@ -82,6 +86,8 @@ class Trajectory:
             states are the polished path's.
         visits: With ``feedback.visit_iterations`` > 0, per round: the share of its episodes that fell before the
             round's searches, and how many searches it ran.
+        forces: With an assist (:mod:`samcon.assist`), the generalised force it gave at every control step of the
+            path (a replay that applies these reaches the same states). Shape: (F - bounds[0], nv).
     """
 
     clip: str
@@ -106,6 +112,7 @@ class Trajectory:
     visits: list[dict[str, Any]] | None = None
     lqr: dict[str, Any] | None = None
     polish: dict[str, Any] | None = None
+    forces: np.ndarray | None = None
 
     @property
     def frames(self) -> int:
@@ -170,7 +177,7 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
            fresh_states: int = 1, fresh_noise: tuple[float, float] = (0.0, 0.0),
            rsi_lift: bool = False, progress: Progress | None = None, start_frame: int = 0,
            end_frame: int | None = None, cost_limit: float = np.inf,
-           start: np.ndarray | None = None) -> Trajectory:  # fmt: skip
+           start: np.ndarray | None = None, assist: Assist | None = None) -> Trajectory:  # fmt: skip
     """Tracks the first ``frames`` control steps of clip ``clip`` from its start (see the module docstring).
 
     Args:
@@ -194,6 +201,8 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
         end_frame: The last frame tracked, a segment start of that grid or ``frames`` (None: ``frames``).
         start: The full MuJoCo state (nstate,) to start from at ``start_frame`` instead of the reference's there
             (e.g. one the feedback policy reached: the searches of ``feedback.visit_iterations``).
+        assist: Root forces (:mod:`samcon.assist`): its law gives every candidate a generalised force at every step
+            from the candidate's state (None: none, as in the gym).
         cost_limit: Raise :class:`SearchAbandoned` as soon as the cheapest kept sample's cost summed along its
             parents exceeds this: costs are never negative, so a trajectory through the kept samples can only cost
             more (a later backtrack could in principle re-search the last segments cheaper; it is not waited for).
@@ -209,9 +218,10 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     beyond = search.lookahead_frames if library.loop[clip] else min(search.lookahead_frames,
                                                                      max(0, library.num_frames[clip] - 1 - frames))
     ref = reference_frames(library, clip, frames + int(beyond))
+    law = None if assist is None else assist(library, clip, len(ref.qpos) - 1)
     bounds = grid[(grid >= start_frame) & (grid <= end_frame)]
     nseg = len(bounds) - 1
-    sim = BatchedSim(humanoid, n, threads, max_speed)
+    sim = BatchedSim(humanoid, n, threads, max_speed, applied=law is not None)
     fk = ForwardKinematics(humanoid, threads)
     # The start time as the gym reaches frame start_frame from 0 (previous time + dt), as reference_frames does.
     t_start = 0.0 if start_frame == 0 else (start_frame - 1) * library.dt + library.dt
@@ -257,7 +267,7 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
                 noise = mean + width * rng.standard_normal((n, nu))
                 offset = base + noise
                 c, terms, end = _simulate(sim, fk, humanoid, cost, starts, offset, ref, f0, f1, hinge,
-                                          search.lookahead_frames, search.lookahead_weight)  # fmt: skip
+                                          search.lookahead_frames, search.lookahead_weight, law)  # fmt: skip
                 rounds.append((parent, offset, c, end, terms, feat, fresh))
                 elite = np.flatnonzero(~fresh)[np.argsort(c[~fresh], kind="stable")[: search.elite]]
                 w = _log_weights(len(elite))
@@ -307,13 +317,17 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     traj = _trace_back(library.names[clip], start, history, ref, bounds, hinge, samples, time.perf_counter() - t0,
                        features, actions)  # fmt: skip
     traj.backtracks, traj.sigma = backtracks, search.sigma_init
+    if law is not None:
+        traj.forces = assisted_replay(humanoid, start, traj.targets, law, int(bounds[0]), max_speed)[1]
     return traj
 
 
 def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: CostConfig, starts: np.ndarray,
               offset: np.ndarray, ref: CharacterState, f0: int, f1: int, hinge: np.ndarray, lookahead: int = 0,
-              lookahead_weight: float = 1.0) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:  # fmt: skip
-    """Simulates every candidate through frames [f0, f1) from ``starts`` (n, nstate) with targets ref + ``offset``.
+              lookahead_weight: float = 1.0,
+              law: AssistLaw | None = None) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:  # fmt: skip
+    """Simulates every candidate through frames [f0, f1) from ``starts`` (n, nstate) with targets ref + ``offset``
+    (and, with ``law``, the generalised force it gives each over every step).
 
     With ``lookahead`` > 0 each candidate plays on for that many frames past the segment (the same offset held,
     at most to the reference's last frame), and ``lookahead_weight`` times that stretch's mean cost joins its
@@ -332,7 +346,7 @@ def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: 
     sums = {key: np.zeros(n) for key in (*COST_TERMS, "fallen")}
     blown = np.zeros(n, dtype=bool)
     for f in range(f0, f1):
-        blown |= sim.step(ref.qpos[f + 1, hinge][None] + offset)
+        blown |= sim.step(ref.qpos[f + 1, hinge][None] + offset, _force(law, f, sim))
         # A blown-up character is put back on its start so that no NaN reaches the kinematics; it is never kept.
         sim.state[blown] = starts[blown]
         now = fk(sim.qpos.copy(), sim.qvel.copy())
@@ -347,12 +361,16 @@ def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: 
     if len(ahead):
         more = np.zeros(n)
         for f in ahead:
-            blown_ahead = sim.step(ref.qpos[f + 1, hinge][None] + offset)
+            blown_ahead = sim.step(ref.qpos[f + 1, hinge][None] + offset, _force(law, f, sim))
             sim.state[blown_ahead | blown] = end[blown_ahead | blown]
             more += tracking_cost(humanoid, cost, fk(sim.qpos.copy(), sim.qvel.copy()), ref[np.full(n, f + 1)])[0]
         total += lookahead_weight * more / len(ahead)
     total = np.where(blown, np.inf, total)
     return total, {k: v / (frames if k != "fallen" else 1) for k, v in sums.items()}, end
+
+
+def _force(law: AssistLaw | None, frame: int, sim: BatchedSim) -> np.ndarray | None:
+    return None if law is None else law(frame, sim.qpos, sim.qvel)
 
 
 def _trace_back(name: str, start: np.ndarray, history: list, ref: CharacterState, bounds: np.ndarray,
@@ -378,14 +396,33 @@ def _trace_back(name: str, start: np.ndarray, history: list, ref: CharacterState
     )  # fmt: skip
 
 
-def replay(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, max_speed: float = 1000.0) -> np.ndarray:
-    """Plays PD targets (F, nu) open loop from a full state (nstate,); the state after every step, (F, nstate)."""
-    sim = BatchedSim(humanoid, 1, 0, max_speed)
+def assisted_replay(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, law: AssistLaw, first: int = 0,
+                    max_speed: float = 1000.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Plays PD targets (F, nu) open loop from a full state (nstate,) at clip frame ``first`` with the forces of
+    ``law``: the state after every step (F, nstate) and the force of every step (F, nv)."""
+    sim = BatchedSim(humanoid, 1, 0, max_speed, applied=True)
+    out, forces = np.zeros((len(targets), len(start))), np.zeros((len(targets), humanoid.nv))
+    try:
+        sim.state[0] = start
+        for f, target in enumerate(targets):
+            forces[f] = law(first + f, sim.qpos, sim.qvel)[0]
+            sim.step(target[None], forces[f])
+            out[f] = sim.state[0]
+    finally:
+        sim.close()
+    return out, forces
+
+
+def replay(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, max_speed: float = 1000.0,
+           forces: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+    """Plays PD targets (F, nu) open loop from a full state (nstate,), with ``forces`` (F, nv) the generalised force
+    of every step too; the state after every step, (F, nstate)."""
+    sim = BatchedSim(humanoid, 1, 0, max_speed, applied=forces is not None)
     out = np.zeros((len(targets), len(start)))
     try:
         sim.state[0] = start
         for f, target in enumerate(targets):
-            sim.step(target[None])
+            sim.step(target[None], None if forces is None else forces[f])
             out[f] = sim.state[0]
     finally:
         sim.close()

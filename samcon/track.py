@@ -307,17 +307,18 @@ def polished(traj: Trajectory, cfg: SamconConfig, humanoid: Humanoid, library: M
              log: Any, searcher: Searcher | None = None) -> Trajectory:  # fmt: skip
     """``traj`` (from the clip's start) after the iLQR polish (:mod:`samcon.polish`), its per-segment record
     recomputed along the polished path (unchanged where the polish was dropped); the polish's seconds count in the
-    oracle's."""
+    oracle's. A path with root forces (``traj.forces``, :mod:`samcon.assist`) is polished with them held."""
     hinge = humanoid.hinge_qpos
     ref = reference_frames(library, clip, traj.frames)
     ref_targets = ref.qpos[1:, hinge]
     targets, summary = polish(humanoid, traj.start_state, traj.targets, ref, ref_targets, cfg.polish,
-                              cfg.cost.fall_head_error, traj.clip, log, lqr=cfg.lqr, searcher=searcher)  # fmt: skip
+                              cfg.cost.fall_head_error, traj.clip, log, lqr=cfg.lqr, searcher=searcher,
+                              forces=traj.forces)  # fmt: skip
     summary["windows"] = [{k: w[k] for k in ("first", "end", "searched")} | {"steps": len(w["iterations"]) - 1}
                           for w in summary["windows"]]  # fmt: skip
     if not summary["kept"]:
         return replace(traj, seconds=traj.seconds + summary["seconds"], polish=summary)
-    states = replay(humanoid, traj.start_state, targets, cfg.gym.max_speed)
+    states = replay(humanoid, traj.start_state, targets, cfg.gym.max_speed, traj.forces)
     m = humanoid.model
     fk = ForwardKinematics(humanoid, threads=0)
     try:
@@ -392,13 +393,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    args = build_parser().parse_args(argv)
+def cli_overrides(args: argparse.Namespace) -> list[str]:
+    """The config overrides of a command's ``--set``, ``--motions`` and ``--seed`` options, in that order."""
     overrides = list(args.overrides)
     if args.motions is not None:
         overrides.append("train.motions=[" + ", ".join(repr(m) for m in args.motions) + "]")
     if args.seed is not None:
         overrides.append(f"train.seed={args.seed}")
+    return overrides
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
+    overrides = cli_overrides(args)
     try:
         cfg = load_config(SamconConfig, args.config, overrides)
         humanoid = Humanoid(cfg.gym.physics)

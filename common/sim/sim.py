@@ -2,8 +2,10 @@
 
 Each character is one batch entry of a rollout of ``substeps`` physics steps with a constant control (the PD
 targets of the position actuators). All arrays are preallocated and contiguous so that the rollout runs with
-``skip_checks``. A character whose simulation raised a MuJoCo warning (e.g. bad accelerations) has the rest of its
-rollout frozen, so its time stops advancing: that, or a non-finite or absurd velocity, marks it as diverged.
+``skip_checks``. With ``applied=True`` every step also takes a generalised force per character (MuJoCo's
+``qfrc_applied``, held over the substeps like the targets): the root forces of ``samcon.assist``. A character
+whose simulation raised a MuJoCo warning (e.g. bad accelerations) has the rest of its rollout frozen, so its time
+stops advancing: that, or a non-finite or absurd velocity, marks it as diverged.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from mujoco import rollout
 from common.character.humanoid import Humanoid
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
+_CTRL = int(mujoco.mjtState.mjSTATE_CTRL)
+_CTRL_AND_FORCE = _CTRL | int(mujoco.mjtState.mjSTATE_QFRC_APPLIED)  # the control vector: ctrl (nu), then qfrc (nv)
 
 
 class BatchedSim:
@@ -25,9 +29,11 @@ class BatchedSim:
         num_envs: Number of characters N.
         threads: Rollout threads; 0 or 1 runs on the calling thread.
         max_speed: A generalised velocity above this (m/s or rad/s) counts as a blown-up simulation.
+        applied: :meth:`step` also takes a generalised force (``qfrc_applied``) per character.
     """
 
-    def __init__(self, humanoid: Humanoid, num_envs: int, threads: int = 2, max_speed: float = 1e3) -> None:
+    def __init__(self, humanoid: Humanoid, num_envs: int, threads: int = 2, max_speed: float = 1e3,
+                 applied: bool = False) -> None:  # fmt: skip
         m = humanoid.model
         self.model = m
         self.num_envs = num_envs
@@ -41,7 +47,9 @@ class BatchedSim:
         self._qpos = slice(1, 1 + m.nq)
         self._qvel = slice(1 + m.nq, 1 + m.nq + m.nv)
         self.state = np.zeros((num_envs, nstate))
-        self._ctrl = np.zeros((num_envs, self.substeps, m.nu))
+        self.applied = applied
+        self._spec = _CTRL_AND_FORCE if applied else _CTRL
+        self._ctrl = np.zeros((num_envs, self.substeps, m.nu + (m.nv if applied else 0)))
         self._out = np.zeros((num_envs, self.substeps, nstate))
         self._sensor = np.zeros((num_envs, self.substeps, m.nsensordata))
         threads = max(0, int(threads))
@@ -70,21 +78,29 @@ class BatchedSim:
         self.state[ids, self._qpos] = qpos
         self.state[ids, self._qvel] = qvel
 
-    def step(self, ctrl: np.ndarray) -> np.ndarray:
+    def step(self, ctrl: np.ndarray, force: np.ndarray | None = None) -> np.ndarray:
         """Advances every character by one control step.
 
         Args:
             ctrl: Position actuator targets. Shape: (N, nu).
+            force: With ``applied``: the generalised force held over the step (None: 0). Shape: (N, nv) or (nv,).
 
         Returns:
             diverged: characters whose simulation blew up (their state is left as it is; the caller resets them).
             Shape: (N,).
         """
-        self._ctrl[:] = ctrl[:, None, :]
+        nu = self.model.nu
+        self._ctrl[:, :, :nu] = ctrl[:, None, :]
+        if force is not None:
+            if not self.applied:
+                raise ValueError("this BatchedSim was built without applied=True: it takes no force")
+            self._ctrl[:, :, nu:] = np.broadcast_to(force, (self.num_envs, self.model.nv))[:, None, :]
+        elif self.applied:
+            self._ctrl[:, :, nu:] = 0.0
         t0 = self.state[:, 0].copy()
         self._pool.rollout(
             self._models, self._datas, self.state, self._ctrl, state=self._out, sensordata=self._sensor,
-            nstep=self.substeps, skip_checks=True,
+            nstep=self.substeps, control_spec=self._spec, skip_checks=True,
         )  # fmt: skip
         final = self._out[:, -1]
         self.state[:] = final

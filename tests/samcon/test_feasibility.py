@@ -24,6 +24,7 @@ from samcon.feasibility import (
     model_friction,
     range_excess,
     residual_force,
+    residual_vector,
     summarise,
     torque_limits,
     total_mass,
@@ -77,6 +78,19 @@ def test_residual_force_hand_computed() -> None:
     # |F_h| = 5: mu 0.2 holds 2 of it; mu 1 all of it; a pulling floor and flight leave |F|.
     np.testing.assert_allclose(residual_force(force[:1], contact[:1], 0.2), [3.0])
     np.testing.assert_allclose(residual_force(force, contact, 1.0), [0.0, 0.0, np.sqrt(26.0), np.sqrt(125.0)])
+
+
+def test_residual_vector_is_the_force_outside_the_cone() -> None:
+    force = np.array([[3.0, 4.0, 10.0], [3.0, 4.0, 10.0], [3.0, 4.0, -1.0], [3.0, 4.0, 10.0], [0.0, 0.0, 5.0]])
+    contact = np.array([True, True, True, False, True])
+    res = residual_vector(force, contact, 0.2)
+    # mu F_z = 2 of |F_h| = 5 is the floor's, the other 3 along F_h = (3, 4)/5; a pulling floor and flight leave F.
+    np.testing.assert_allclose(res, [[1.8, 2.4, 0.0], [1.8, 2.4, 0.0], [3.0, 4.0, -1.0], [3.0, 4.0, 10.0],
+                                     [0.0, 0.0, 0.0]], atol=1e-12)  # fmt: skip
+    # What is left for the floor is inside its cone (|F_h| <= mu F_z) where it touches and pushes.
+    floor = (force - res)[[0, 1, 4]]
+    assert np.all(np.linalg.norm(floor[:, :2], axis=-1) <= 0.2 * floor[:, 2] + 1e-12)
+    np.testing.assert_allclose(np.linalg.norm(res, axis=-1), residual_force(force, contact, 0.2), atol=1e-12)
 
 
 def test_standing_still_needs_body_weight_up_and_lifted_it_is_all_residual(clips) -> None:

@@ -109,17 +109,22 @@ def test_body_cost_derivatives_match_finite_differences(walk) -> None:
         cost.close()
 
 
-def test_polish_lowers_the_cost_and_replays(walk) -> None:
+@pytest.mark.parametrize("pushed", [False, True])
+def test_polish_lowers_the_cost_and_replays(walk, pushed: bool) -> None:
     """From the reference's own targets (open-loop playback) on walk's first 24 frames, two windows of iLQR and two
     iterations on the whole path lower the body error, and the targets returned replay to the cost the polish
-    reports."""
+    reports; with root forces held (samcon.assist), replayed with the same forces."""
     humanoid, library = walk
     frames = 24
     ref = reference_frames(library, 0, frames)
     ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
     start = start_state(library, humanoid, 0)
+    forces = None
+    if pushed:  # a root force changing over the path: 150 N up and a sideways swing of 80 N
+        forces = np.zeros((frames, humanoid.nv))
+        forces[:, 1], forces[:, 2] = 80.0 * np.sin(np.arange(frames) / 4.0), 150.0
     cfg = PolishConfig(iterations=3, window=16, stride=8, lookahead=4, whole_iterations=2)
-    targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25)
+    targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, forces=forces)
     assert summary["kept"] and summary["cost_after"] < summary["cost_before"]
     # the window pass, then the whole path from its result: never dearer than the pass it started from
     assert summary["passes"][-1]["whole_steps"] <= 2 and summary["cost_after"] <= summary["passes"][0]["cost"]
@@ -127,11 +132,13 @@ def test_polish_lowers_the_cost_and_replays(walk) -> None:
     assert not np.array_equal(targets, ref_targets)
     cost = BodyCost(humanoid, cfg, ref, ref_targets, 0.25)
     try:
-        replayed = cost.path_cost(nominal_states(humanoid, start, targets), targets, 0)
+        replayed = cost.path_cost(nominal_states(humanoid, start, targets, forces), targets, 0)
+        plain = cost.path_cost(nominal_states(humanoid, start, targets), targets, 0)
     finally:
         cost.close()
     assert replayed.total == summary["cost_after"]
     assert replayed.fell_at == -1
+    assert (plain.total == replayed.total) == (not pushed)  # the forces were applied, not ignored
 
 
 def test_windows_ask_the_searcher_for_the_frames_after_the_last_look_ahead(walk) -> None:

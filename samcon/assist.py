@@ -1,0 +1,283 @@
+"""Tracking with the root force the reference itself needs: whether a clip is out of reach *because* of root forces.
+
+``samcon.feasibility`` measures, from the reference alone, the part of the net external force m (a_com - g) that no
+floor contact can supply (its *residual*: all of it in flight, the part outside the friction cone in contact). A
+clip with a large residual cannot be tracked exactly by any controller of this character, but that alone does not
+say how close one can get. This module answers it by experiment: the same search (and polish) as ``track-samcon``,
+once as it is and once with the residual applied as a **root force** (Yuan & Kitani 2020's residual force control,
+here fixed by the reference, not learned): over every control step f -> f + 1, ``scale`` x the mean of the residual
+vectors of frames f and f + 1, at the free joint's translation dofs (a world-frame force on the pelvis). The force is
+a function of the reference frame alone, so an assisted path is still open loop and replays bit-exactly.
+
+A clip that tracks within the target with the assist and not without it is *not trackable without root forces*,
+measured; one that misses with the assist too misses for another reason (a torque limit, a joint range, the search).
+
+The residual at frame k is measured 1's h-step difference (the mean acceleration under a triangle of half-width h
+steps, see ``samcon.feasibility``), on the reference frames the search plays (``search.reference_frames``), with the
+first and last h frames taking their nearest measured neighbour's. The assisted paths are judged here, by the shared
+metrics on the replayed states (:func:`judge`, the evaluator's full-horizon MPJPE and head rule); they never enter a
+run directory: the shared evaluator applies no root force, and an assisted path is not a tracker's result.
+
+Command::
+
+    python -m samcon.assist --config configs/samcon/default.yaml --motions run jog --out runs/assist.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from functools import partial
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from common.character.humanoid import BodyGeometry, Humanoid
+from common.character.kinematics import ForwardKinematics
+from common.character.state import CharacterState
+from common.motion.dataset import resolve_clips
+from common.motion.library import MotionLibrary
+from common.motion.motion import MotionFormatError
+from common.sim.rewards import termination
+from common.train import metrics as M
+from common.train.config import ConfigError, atomic_output, load_config
+from common.train.evaluate import EvalConfig
+from samcon.config import SamconConfig
+from samcon.feasibility import (
+    CONTACT_TOLERANCE,
+    accel_step,
+    body_weight,
+    com_and_clearance,
+    external_force,
+    model_friction,
+    residual_vector,
+    total_mass,
+)
+from samcon.search import horizon, reference_frames, replay, samcon
+from samcon.track import cli_overrides, clip_generator, polished
+
+
+@dataclass(frozen=True)
+class AssistConfig:
+    """The root force: a world-frame force on the root body's origin (the free joint's translation dofs),
+    ``F = clip(scale F_res(f) + m (kp (p* - p) + kd (v* - v)), cap m |g|)`` over step f -> f + 1, p and v the
+    root's position and velocity at frame f, p* and v* the reference's, F_res the reference's residual (the mean of
+    frames f's and f + 1's, :func:`residual_per_frame`).
+
+    Attributes:
+        scale: Times the reference's residual force (1: all of it; 0: none).
+        kp: 1/s^2, the feedback on the root's position error (m kp: N per m).
+        kd: 1/s, the feedback on its velocity error.
+        cap: Largest force in body weights m |g| (0: no force at all, the same code path).
+        step: h, the residual's differencing step in control steps (None: the clip's source keyframe spacing rounded
+            up, at least 2, as ``samcon.feasibility`` measures it; see :func:`samcon.feasibility.accel_step`).
+        contact_tolerance: m; a geom this close to the floor in the reference touches it.
+        friction: Sliding friction coefficient (None: the model's).
+    """
+
+    scale: float = 0.0
+    kp: float = 100.0
+    kd: float = 20.0
+    cap: float = 0.5
+    step: int | None = None
+    contact_tolerance: float = CONTACT_TOLERANCE
+    friction: float | None = None
+
+    def __post_init__(self) -> None:
+        if min(self.scale, self.kp, self.kd, self.cap, self.contact_tolerance) < 0.0:
+            raise ValueError(f"assist: need scale, kp, kd, cap, contact_tolerance >= 0, got {self}")
+        if self.step is not None and self.step < 1:
+            raise ValueError(f"assist.step must be >= 1, got {self.step}")
+        if self.friction is not None and not self.friction >= 0.0:
+            raise ValueError(f"assist.friction must be >= 0, got {self.friction}")
+
+
+def residual_per_frame(humanoid: Humanoid, qpos: np.ndarray, dt: float, step: int, tolerance: float = CONTACT_TOLERANCE,
+                       friction: float | None = None) -> np.ndarray:  # fmt: skip
+    """The reference's residual force vector (:func:`samcon.feasibility.residual_vector`) at every frame, the first and
+    last h frames taking their nearest measured neighbour's.
+
+    Args:
+        qpos: Reference generalised positions on the control grid. Shape: (T, nq), T >= 2h + 1.
+        dt: Grid step in s.
+        step: h in grid steps.
+        tolerance: Contact tolerance in m.
+        friction: mu (None: the model's).
+
+    Returns:
+        Shape: (T, 3), N, world frame.
+    """
+    if len(qpos) < 2 * step + 1:
+        raise ValueError(f"the residual needs at least {2 * step + 1} reference frames, got {len(qpos)}")
+    mu = model_friction(humanoid) if friction is None else friction
+    com, clearance = com_and_clearance(humanoid, qpos)
+    force, contact = external_force(humanoid, com, clearance, dt, step, tolerance)
+    res = residual_vector(force, contact, mu)
+    return np.concatenate([np.repeat(res[:1], step, axis=0), res, np.repeat(res[-1:], step, axis=0)])
+
+
+class RootAssist:
+    """The law of :class:`AssistConfig` for a clip's first ``steps`` steps from its start (a
+    :data:`samcon.search.AssistLaw`; ``RootAssist`` with ``humanoid`` and ``cfg`` bound is a
+    :data:`samcon.search.Assist`). The reference is :func:`samcon.search.reference_frames`', the residual's h frames
+    past the last as the library continues the clip.
+    """
+
+    def __init__(self, humanoid: Humanoid, library: MotionLibrary, clip: int, steps: int, cfg: AssistConfig) -> None:
+        m = humanoid.model
+        if m.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE or m.jnt_dofadr[0] != 0 or m.jnt_qposadr[0] != 0:
+            raise ValueError(f"{humanoid.xml_path}: the root force needs the free joint first")
+        if cfg.step is None:
+            raise ValueError("assist.step must be resolved per clip (samcon.feasibility.accel_step) before use")
+        self.cfg, self.nv = cfg, m.nv
+        self.mass, self.limit = total_mass(humanoid), cfg.cap * body_weight(humanoid)
+        ref = reference_frames(library, clip, max(steps + cfg.step, 2 * cfg.step))
+        res = residual_per_frame(humanoid, ref.qpos, library.dt, cfg.step, cfg.contact_tolerance, cfg.friction)
+        self.feedforward = cfg.scale * 0.5 * (res[:steps] + res[1 : steps + 1])
+        self.root_pos, self.root_vel = ref.qpos[:steps, 0:3].copy(), ref.qvel[:steps, 0:3].copy()
+
+    def __call__(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        cfg = self.cfg
+        force = self.feedforward[frame] + self.mass * (cfg.kp * (self.root_pos[frame] - qpos[:, 0:3])
+                                                       + cfg.kd * (self.root_vel[frame] - qvel[:, 0:3]))  # fmt: skip
+        norm = np.sqrt(np.sum(force * force, axis=-1, keepdims=True))
+        force = force * np.minimum(1.0, self.limit / np.maximum(norm, 1e-300))
+        out = np.zeros((len(qpos), self.nv))
+        out[:, 0:3] = force
+        return out
+
+
+def judge(humanoid: Humanoid, states: np.ndarray, ref: CharacterState, ev: EvalConfig) -> dict[str, Any]:
+    """The evaluator's open-loop figures for a path from a clip's start, from the same metric and termination
+    functions: MPJPE-g and -l (mm) over every frame (the full-horizon protocol) and the first step (1-based) at which
+    its failure rules (``ev.termination``) fire, None if never.
+
+    Args:
+        states: Full states after every step (:func:`samcon.search.replay`). Shape: (F, nstate).
+        ref: The reference at frames 1..F. Leading shape (F,).
+    """
+    m = humanoid.model
+    fk = ForwardKinematics(humanoid, threads=0)
+    try:
+        sim = fk(states[:, 1 : 1 + m.nq].copy(), states[:, 1 + m.nq : 1 + m.nq + m.nv].copy())
+    finally:
+        fk.close()
+    geometry = BodyGeometry(humanoid)
+    failed, _ = termination(ev.termination, humanoid, sim, ref, np.arange(1, len(states) + 1),
+                            geometry.lowest_points(sim.body_pos, sim.body_rot),
+                            geometry.lowest_points(ref.body_pos, ref.body_rot))  # fmt: skip
+    return {
+        "mpjpe_g": float(M.mpjpe_global_mm(sim.body_pos, ref.body_pos).mean()),
+        "mpjpe_l": float(M.mpjpe_local_mm(sim.body_pos, ref.body_pos, root_index=humanoid.root_index).mean()),
+        "fell_at": int(np.argmax(failed)) + 1 if failed.any() else None,
+    }
+
+
+def force_summary(forces: np.ndarray, weight: float) -> dict[str, float]:
+    """|root force| over a path's steps (F, nv), in body weights: mean, 95th percentile, max, share above 0.1."""
+    norm = np.linalg.norm(forces[:, 0:3], axis=-1) / weight
+    return {"mean": float(norm.mean()), "p95": float(np.percentile(norm, 95)), "max": float(norm.max()),
+            "share_over_0.1": float(np.mean(norm > 0.1))}  # fmt: skip
+
+
+def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
+                   log: Any) -> dict[str, Any]:  # fmt: skip
+    """One clip: the search of ``cfg`` (and its polish when on) with the root force of ``acfg``, judged open loop
+    from the clip's start with the force replayed. The draws are ``track-samcon``'s (its seed and the clip's name)."""
+    name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
+
+    def progress(k: int, segments: int, best: float, seconds: float, back: int | None) -> None:
+        again = "" if back is None else f": every kept sample fell, back to segment {back + 1}"
+        print(f"{name} segment {k + 1}/{segments} cost {best:.4g} {seconds:.0f} s{again}", file=log, flush=True)
+
+    traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, clip_generator(cfg.train.seed, name),
+                  threads=cfg.train.threads, max_speed=cfg.gym.max_speed, rsi_lift=cfg.train.eval.rsi_lift,
+                  progress=progress, assist=partial(RootAssist, humanoid, cfg=acfg))  # fmt: skip
+    ref = reference_frames(library, clip, frames)
+    row: dict[str, Any] = {"frames": frames, "step": acfg.step}
+    states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
+    row["searched"] = judge(humanoid, states, ref[1:], cfg.train.eval)
+    if cfg.polish.iterations:
+        traj = polished(traj, cfg, humanoid, library, clip, log)
+        states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
+        row["polished"] = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(traj.polish["kept"])}
+    row |= {"force_body_weights": force_summary(traj.forces, body_weight(humanoid)), "samples": traj.samples,
+            "minutes": traj.seconds / 60.0, "minutes_per_motion_second": traj.seconds / 60.0 / (frames * library.dt)}
+    return row
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m samcon.assist", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("--config", default="configs/samcon/default.yaml",
+                        help="track-samcon config whose search, cost, polish and seed are used "
+                             "(default: configs/samcon/default.yaml)")  # fmt: skip
+    parser.add_argument("--motions", nargs="+", default=None, help="clips, overriding train.motions")
+    parser.add_argument("--seed", type=int, default=None, help="sampling seed (train.seed)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a config value, e.g. --set search.samples=400 (repeatable)")
+    defaults = AssistConfig()
+    parser.add_argument("--scale", type=float, default=defaults.scale,
+                        help="feed-forward share of the reference's residual force (default: %(default)s)")
+    parser.add_argument("--kp", type=float, default=defaults.kp, metavar="PER_S2",
+                        help="root position feedback, 1/s^2 times the mass (default: %(default)s)")
+    parser.add_argument("--kd", type=float, default=defaults.kd, metavar="PER_S",
+                        help="root velocity feedback, 1/s times the mass (default: %(default)s)")
+    parser.add_argument("--cap", type=float, default=defaults.cap, metavar="BODY_WEIGHTS",
+                        help="largest root force in body weights; 0: none, the unassisted search through the same "
+                             "code (default: %(default)s)")  # fmt: skip
+    parser.add_argument("--step", type=int, default=None, metavar="H",
+                        help="differencing step of the residual in control steps (default: per clip, its source "
+                             "keyframe spacing rounded up, at least 2, as samcon.feasibility measures it)")  # fmt: skip
+    parser.add_argument("--contact-tolerance", type=float, default=CONTACT_TOLERANCE, metavar="METRES",
+                        help=f"reference contact tolerance (default: {CONTACT_TOLERANCE} m)")
+    parser.add_argument("--friction", type=float, default=None, metavar="MU",
+                        help="friction coefficient of the cone (default: the model's)")
+    parser.add_argument("--out", default=None, metavar="FILE.json",
+                        help="write the per-clip figures there (atomically), after every clip")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
+    try:
+        cfg = load_config(SamconConfig, args.config, cli_overrides(args))
+        acfg = AssistConfig(scale=args.scale, kp=args.kp, kd=args.kd, cap=args.cap, step=args.step,
+                            contact_tolerance=args.contact_tolerance, friction=args.friction)  # fmt: skip
+        if cfg.search.sigma_choices:
+            raise ConfigError(f"{args.config}: search.sigma_choices is not supported here; set search.sigma_init")
+        if cfg.polish.iterations and cfg.polish.search:
+            raise ConfigError(f"{args.config}: polish.search is not supported here (its searches have no root force)")
+        humanoid = Humanoid(cfg.gym.physics)
+        # resolve_clips + from_clips (load_motions without its dataset branch): h needs the source keyframe times.
+        clips = resolve_clips(list(cfg.train.motions))
+        library = MotionLibrary.from_clips(clips, humanoid)
+    except (ConfigError, MotionFormatError, FileNotFoundError, ValueError) as e:
+        sys.exit(f"error: {e}")
+    out: dict[str, Any] = {"config": args.config, "overrides": args.overrides, "assist": vars(acfg), "clips": {}}
+    t0 = time.perf_counter()
+    for c, name in enumerate(library.names):
+        step = acfg.step or accel_step(1.0 / clips[c].source_fps, library.dt)
+        row = track_assisted(cfg, replace(acfg, step=step), humanoid, library, c, sys.stdout)
+        out["clips"][name] = row
+        final = row.get("polished", row["searched"])
+        fell = "" if final["fell_at"] is None else f", fell at step {final['fell_at']}"
+        print(f"{name}: MPJPE-g {row['searched']['mpjpe_g']:.1f} mm searched"
+              + (f", {final['mpjpe_g']:.1f} polished" if "polished" in row else "")
+              + f"{fell}; root force mean {row['force_body_weights']['mean']:.3f} body weights; "
+              f"{row['minutes_per_motion_second']:.2f} min per s of motion", flush=True)  # fmt: skip
+        if args.out is not None:
+            out["seconds"] = time.perf_counter() - t0
+            with atomic_output(args.out) as tmp:
+                tmp.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
+    if args.out is not None:
+        print(f"written: {args.out}")
+
+
+if __name__ == "__main__":
+    main()

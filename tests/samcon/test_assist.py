@@ -1,0 +1,141 @@
+"""Root forces (samcon.assist): the force's sign, units and place against physics, the law by hand, assisted searches
+that replay bit-exactly, a judge that is the evaluator's, and the command."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.character.humanoid import Humanoid
+from common.motion.dataset import load_motions
+from common.sim.sim import BatchedSim
+from common.train.evaluate import EvalConfig, evaluate
+from samcon.assist import AssistConfig, RootAssist, judge, main, residual_per_frame
+from samcon.config import CostConfig, SearchConfig
+from samcon.feasibility import body_weight, com_and_clearance, total_mass
+from samcon.feedback import ClipPlan, open_loop_policy
+from samcon.search import assisted_replay, reference_frames, replay, samcon, start_state
+
+
+@pytest.fixture(scope="module")
+def walk() -> tuple[Humanoid, object]:
+    humanoid = Humanoid()
+    return humanoid, load_motions(["walk"], humanoid)
+
+
+def test_the_residual_of_a_pose_held_in_the_air_holds_it_there(walk) -> None:
+    """A still pose 1 m up needs m |g| upwards, all of it residual (nothing touches); applied at the root it keeps
+    the centre of mass where it is, while without it the body falls g t^2 / 2."""
+    humanoid, library = walk
+    pose = library.frames.qpos[0].copy()
+    pose[2] += 1.0
+    qpos = np.repeat(pose[None], 9, axis=0)
+    res = residual_per_frame(humanoid, qpos, library.dt, step=2)
+    np.testing.assert_allclose(res, np.tile([0.0, 0.0, body_weight(humanoid)], (9, 1)), atol=1e-6)
+    steps = 10
+    sims = BatchedSim(humanoid, 2, threads=0, applied=True)
+    sims.set_state(np.arange(2), np.repeat(pose[None], 2, axis=0), np.zeros((2, humanoid.nv)))
+    force = np.zeros((2, humanoid.nv))
+    force[0, 0:3] = res[0]  # the first character is held, the second is not
+    com0 = com_and_clearance(humanoid, sims.qpos.copy())[0]
+    for _ in range(steps):
+        sims.step(np.repeat(pose[None, humanoid.hinge_qpos], 2, axis=0), force)
+    drop = com0[:, 2] - com_and_clearance(humanoid, sims.qpos.copy())[0][:, 2]
+    sims.close()
+    free_fall = 0.5 * 9.81 * (steps * humanoid.physics.control_dt) ** 2  # 0.136 m
+    assert abs(drop[0]) < 1e-3
+    assert drop[1] == pytest.approx(free_fall, rel=0.02)
+
+
+def test_the_law_by_hand(walk) -> None:
+    humanoid, library = walk
+    m, weight = total_mass(humanoid), body_weight(humanoid)
+    ref = reference_frames(library, 0, 40)
+    f = 20
+    qpos, qvel = ref.qpos[[f, f, f]].copy(), ref.qvel[[f, f, f]].copy()
+    qpos[1, 0] += 0.1  # 10 cm ahead: kp pulls back
+    qvel[2, 1] -= 0.5  # 0.5 m/s too slow sideways: kd pushes
+    pd = RootAssist(humanoid, library, 0, 30, AssistConfig(kp=100.0, kd=20.0, cap=2.0, step=2))(f, qpos, qvel)
+    expected = np.zeros((3, humanoid.nv))
+    expected[1, 0], expected[2, 1] = -m * 100.0 * 0.1, m * 20.0 * 0.5
+    np.testing.assert_allclose(pd, expected, atol=1e-9)
+    # Capped: a 2 m error asks for 200 m/s^2, the cap gives 0.5 body weights along the same direction.
+    qpos[1, 0] = ref.qpos[f, 0] + 2.0
+    capped = RootAssist(humanoid, library, 0, 30, AssistConfig(cap=0.5, step=2))(f, qpos[1:2], ref.qvel[f : f + 1])
+    np.testing.assert_allclose(capped[0, 0:3], [-0.5 * weight, 0.0, 0.0], rtol=1e-12)
+    # Feed-forward alone: the mean of the residual of frames f and f + 1.
+    residual = residual_per_frame(humanoid, reference_frames(library, 0, 30).qpos, library.dt, 2)
+    ff = RootAssist(humanoid, library, 0, 30, AssistConfig(scale=1.0, kp=0.0, kd=0.0, cap=10.0, step=2))
+    np.testing.assert_allclose(ff(f, qpos[:1], qvel[:1])[0, 0:3], 0.5 * (residual[f] + residual[f + 1]), atol=1e-9)
+
+
+def test_an_assisted_search_replays_bit_exactly_and_a_zero_cap_is_the_plain_search(walk) -> None:
+    humanoid, library = walk
+    search = SearchConfig(segment_frames=4, samples=8, iterations=2, keep=3, elite=4, lookahead_frames=4)
+
+    def run(cap: float | None):
+        assist = None if cap is None else (lambda lib, c, n: RootAssist(humanoid, lib, c, n, AssistConfig(cap=cap,
+                                                                                                          step=2)))
+        return samcon(humanoid, library, 0, 12, search, CostConfig(), np.random.default_rng(5), assist=assist)
+
+    plain, zero, pushed = run(None), run(0.0), run(0.5)
+    np.testing.assert_array_equal(plain.targets, zero.targets)
+    np.testing.assert_array_equal(plain.segment_cost, zero.segment_cost)
+    assert plain.forces is None and not zero.forces.any()
+    assert np.abs(pushed.forces[:, 0:3]).max() > 1.0 and not pushed.forces[:, 3:].any()
+    assert np.linalg.norm(pushed.forces[:, 0:3], axis=-1).max() <= 0.5 * body_weight(humanoid) * (1 + 1e-12)
+    # Replayed with the forces it recorded, or with the law, the path passes through the searched end states.
+    states = replay(humanoid, pushed.start_state, pushed.targets, forces=pushed.forces)
+    np.testing.assert_array_equal(states[pushed.bounds[1:] - 1], pushed.end_states)
+    law = RootAssist(humanoid, library, 0, 12, AssistConfig(cap=0.5, step=2))
+    again, forces = assisted_replay(humanoid, pushed.start_state, pushed.targets, law)
+    np.testing.assert_array_equal(again, states)
+    np.testing.assert_array_equal(forces, pushed.forces)
+
+
+def test_the_judge_is_the_evaluator(walk) -> None:
+    """An open-loop path that falls (the reference's targets bent 0.6 rad): the judge's errors and its failure step
+    are the shared evaluator's."""
+    humanoid, library = walk
+    frames = 120
+    ref = reference_frames(library, 0, frames)
+    targets = ref.qpos[1:, humanoid.hinge_qpos] + 0.6
+    plan = ClipPlan(targets, np.array([0, frames]), np.zeros((1, humanoid.nu, 16)), np.zeros((1, humanoid.nu)))
+    ev = EvalConfig(starts_per_clip=1, max_frames=frames, threads=1)
+    result = evaluate(open_loop_policy({"walk": plan}, library, humanoid), library, humanoid, ev)
+    got = judge(humanoid, replay(humanoid, start_state(library, humanoid, 0), targets), ref[1:], ev)
+    assert result.per_clip["survival"][0] == 0.0 and got["fell_at"] == result.episode_length[0, 0]
+    assert got["mpjpe_g"] == pytest.approx(result.per_clip["mpjpe_g"][0], rel=1e-9)
+    assert got["mpjpe_l"] == pytest.approx(result.per_clip["mpjpe_l"][0], rel=1e-9)
+    # Without the grace period the rule fires earlier or at the same step, never later.
+    early = judge(humanoid, replay(humanoid, start_state(library, humanoid, 0), targets), ref[1:],
+                  replace(ev, termination=replace(ev.termination, grace_frames=0)))  # fmt: skip
+    assert early["fell_at"] <= got["fell_at"]
+
+
+def test_command_writes_searched_and_polished_figures(tmp_path: Path) -> None:
+    out = tmp_path / "assist.json"
+    main(["--config", "configs/samcon/debug.yaml", "--motions", "walk", "--set", "polish.search=false",
+          "--cap", "0.3", "--out", str(out)])  # fmt: skip
+    row = json.loads(out.read_text())["clips"]["walk"]
+    assert row["frames"] == 6 and row["step"] == 2
+    assert set(row["searched"]) == {"mpjpe_g", "mpjpe_l", "fell_at"} and "kept" in row["polished"]
+    assert 0.0 < row["force_body_weights"]["max"] <= 0.3 + 1e-9
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [(["--motions", "nosuchclip"], "nosuchclip"), (["--cap", "-1"], "cap"), (["--set", "search.bogus=1"], "bogus"),
+     (["--set", "polish.search=true"], "polish.search")],
+)  # fmt: skip
+def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_path: Path) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--config", "configs/samcon/debug.yaml", "--set", "polish.search=false", *args, "--out",
+              str(tmp_path / "a.json")])  # fmt: skip
+    text = str(exit_info.value.code)
+    assert text.startswith("error: ") and message in text and "\n" not in text
+    assert not (tmp_path / "a.json").exists()
