@@ -141,14 +141,32 @@ class RootAssist:
         self.feedforward = cfg.scale * 0.5 * (res[:steps] + res[1 : steps + 1])
         self.root_pos, self.root_vel = ref.qpos[:steps, 0:3].copy(), ref.qvel[:steps, 0:3].copy()
 
-    def __call__(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+    def _unclipped(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.cfg
         force = self.feedforward[frame] + self.mass * (cfg.kp * (self.root_pos[frame] - qpos[:, 0:3])
                                                        + cfg.kd * (self.root_vel[frame] - qvel[:, 0:3]))  # fmt: skip
-        norm = np.sqrt(np.sum(force * force, axis=-1, keepdims=True))
-        force = force * np.minimum(1.0, self.limit / np.maximum(norm, 1e-300))
+        return force, np.sqrt(np.sum(force * force, axis=-1, keepdims=True))
+
+    def __call__(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        force, norm = self._unclipped(frame, qpos, qvel)
         out = np.zeros((len(qpos), self.nv))
-        out[:, 0:3] = force
+        out[:, 0:3] = force * np.minimum(1.0, self.limit / np.maximum(norm, 1e-300))
+        return out
+
+    def jacobian(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """dF/dx (n, nv, 2 nv): u = the unclipped force, du/dp = -m kp, du/dv = -m kd (the free joint's tangent
+        coordinates 0:3 and nv + 0:3 are the root's world position and velocity); clipped, F = L u / |u| and
+        dF/du = L / |u| (I - u u^T / |u|^2)."""
+        u, norm = self._unclipped(frame, qpos, qvel)
+        n, nv = len(qpos), self.nv
+        dfdu = np.tile(np.eye(3), (n, 1, 1))
+        over = norm[:, 0] > self.limit
+        if over.any():
+            unit = u[over] / norm[over]
+            dfdu[over] = (self.limit / norm[over])[:, :, None] * (np.eye(3) - unit[:, :, None] * unit[:, None, :])
+        out = np.zeros((n, nv, 2 * nv))
+        out[:, 0:3, 0:3] = -self.mass * self.cfg.kp * dfdu
+        out[:, 0:3, nv : nv + 3] = -self.mass * self.cfg.kd * dfdu
         return out
 
 
@@ -203,7 +221,7 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
     states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
     row["searched"] = judge(humanoid, states, ref[1:], cfg.train.eval)
     if cfg.polish.iterations:
-        traj = polished(traj, cfg, humanoid, library, clip, log)
+        traj = polished(traj, cfg, humanoid, library, clip, log, law=RootAssist(humanoid, library, clip, frames, acfg))
         states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
         row["polished"] = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(traj.polish["kept"])}
     row |= {"force_body_weights": force_summary(traj.forces, body_weight(humanoid)), "samples": traj.samples,

@@ -45,23 +45,24 @@ from common.sim.sim import BatchedSim
 from common.train.evaluate import EvalConfig, Policy
 from samcon.config import LqrConfig
 from samcon.feedback import ClipPlan, FeedbackPolicy
-from samcon.search import Trajectory
+from samcon.search import AssistLaw, Trajectory
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
-def nominal_states(humanoid: Humanoid, start_state: np.ndarray, targets: np.ndarray,
-                   forces: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+def nominal_states(humanoid: Humanoid, start_state: np.ndarray, targets: np.ndarray, law: AssistLaw | None = None,
+                   first: int = 0) -> np.ndarray:  # fmt: skip
     """The full states a path passes through, replayed as the gym steps (:class:`common.sim.sim.BatchedSim`), so
     that they are bit-exactly those of an evaluator episode that plays ``targets`` from ``start_state`` (with
-    ``forces`` (F, nv), the generalised force of every step too: :mod:`samcon.assist`). Shape: (F + 1, nstate)."""
-    sim = BatchedSim(humanoid, 1, threads=0, applied=forces is not None)
+    ``law``, the generalised force it gives at every step too, the path's first state at clip frame ``first``:
+    :mod:`samcon.assist`). Shape: (F + 1, nstate)."""
+    sim = BatchedSim(humanoid, 1, threads=0, applied=law is not None)
     try:
         sim.state[0] = start_state
         out = np.zeros((len(targets) + 1, len(start_state)))
         out[0] = start_state
         for f, u in enumerate(targets):
-            sim.step(u[None], None if forces is None else forces[f])
+            sim.step(u[None], None if law is None else law(first + f, sim.qpos, sim.qvel))
             out[f + 1] = sim.state[0]
     finally:
         sim.close()
@@ -69,7 +70,7 @@ def nominal_states(humanoid: Humanoid, start_state: np.ndarray, targets: np.ndar
 
 
 def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: float,
-              forces: np.ndarray | None = None) -> tuple[np.ndarray, ...]:  # fmt: skip
+              law: AssistLaw | None = None, first: int = 0) -> tuple[np.ndarray, ...]:  # fmt: skip
     """Per control step f, the Jacobians of the next state's tangent coordinates with respect to those of the state
     at f and to the targets held over the step (see the module docstring).
 
@@ -77,7 +78,9 @@ def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: 
         states: Full MuJoCo states at every frame (:func:`nominal_states`). Shape: (F + 1, nstate).
         targets: PD targets of every frame. Shape: (F, nu).
         eps: Finite-difference step.
-        forces: The generalised force held over every step (None: 0). Shape: (F, nv).
+        law: A generalised force from the state at every step (:mod:`samcon.assist`; None: none), the path's first
+            state at clip frame ``first``. Its dependence on the state joins A: ``A += dx'/dF dF/dx``, dx'/dF by
+            central differences (``FORCE_STEP`` N) of the step's substeps at the dofs the force depends on.
 
     Returns:
         A: Shape: (F, 2 nv, 2 nv). B: Shape: (F, 2 nv, nu).
@@ -90,14 +93,43 @@ def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: 
     for f in range(frames):
         mujoco.mj_setState(m, d, states[f], _FULL)
         d.ctrl[:] = targets[f]
-        d.qfrc_applied[:] = 0.0 if forces is None else forces[f]
+        force = jac = None
+        if law is not None:
+            qpos, qvel = states[f : f + 1, 1 : 1 + m.nq], states[f : f + 1, 1 + m.nq : 1 + m.nq + m.nv]
+            force, jac = law(first + f, qpos, qvel)[0], law.jacobian(first + f, qpos, qvel)[0]
+            d.qfrc_applied[:] = force
         a_f, b_f = np.eye(n), np.zeros((n, nu))
         for _ in range(humanoid.physics.substeps):
             mujoco.mjd_transitionFD(m, d, eps, True, a, b, None, None)
             a_f, b_f = a @ a_f, a @ b_f + b
             mujoco.mj_step(m, d)
+        if jac is not None:
+            for dof in np.flatnonzero(np.abs(jac).max(axis=1) > 0):
+                a_f += np.outer(_force_response(humanoid, states[f], targets[f], force, int(dof)), jac[dof])
         a_out[f], b_out[f] = a_f, b_f
     return a_out, b_out
+
+
+FORCE_STEP = 0.01  # N: the central-difference step of a generalised force in linearise
+
+
+def _force_response(humanoid: Humanoid, state: np.ndarray, target: np.ndarray, force: np.ndarray,
+                    dof: int) -> np.ndarray:  # fmt: skip
+    """d(next state's tangent coordinates) / d(force at ``dof``) over one control step, central differences.
+    Shape: (2 nv,)."""
+    m = humanoid.model
+    d = mujoco.MjData(m)
+    ends = []
+    for sign in (1.0, -1.0):
+        mujoco.mj_setState(m, d, state, _FULL)
+        d.ctrl[:], d.qfrc_applied[:] = target, force
+        d.qfrc_applied[dof] += sign * FORCE_STEP
+        for _ in range(humanoid.physics.substeps):
+            mujoco.mj_step(m, d)
+        ends.append((d.qpos.copy(), d.qvel.copy()))
+    dq = np.zeros(m.nv)
+    mujoco.mj_differentiatePos(m, dq, 1.0, ends[1][0], ends[0][0])
+    return np.concatenate([dq, ends[0][1] - ends[1][1]]) / (2.0 * FORCE_STEP)
 
 
 def riccati(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray,

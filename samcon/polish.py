@@ -49,6 +49,7 @@ from common.sim.sim import BatchedSim
 from samcon.config import CostConfig, LqrConfig, PolishConfig
 from samcon.cost import tracking_cost
 from samcon.lqr import linearise, nominal_states, riccati, state_weights
+from samcon.search import AssistLaw
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 Step = tuple[np.ndarray, np.ndarray, float, float]
@@ -179,10 +180,11 @@ def backward_pass(a: np.ndarray, b: np.ndarray, lx: np.ndarray, lxx: np.ndarray,
 
 
 def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targets: np.ndarray, k: np.ndarray,
-                 gain: np.ndarray, alphas: np.ndarray, limit: float = np.inf,
-                 forces: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+                 gain: np.ndarray, alphas: np.ndarray, limit: float = np.inf, law: AssistLaw | None = None,
+                 first: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """Rolls out ``u_t + alpha k_t + clip(K_t dx_t, +-limit)`` for every alpha in one batch from ``start``, dx the
-    deviation from ``states`` (with ``forces`` (F, nv), the generalised force of every step too).
+    deviation from ``states`` (with ``law``, the generalised force it gives every rollout at every step too, ``start``
+    at clip frame ``first``).
 
     Returns:
         states (A, F + 1, nstate), the targets applied (A, F, nu) and which rollouts blew up (A,).
@@ -190,7 +192,7 @@ def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targ
     m = humanoid.model
     nq, nv = m.nq, m.nv
     n, frames = len(alphas), len(targets)
-    sim = BatchedSim(humanoid, n, threads=0, applied=forces is not None)
+    sim = BatchedSim(humanoid, n, threads=0, applied=law is not None)
     out = np.zeros((n, frames + 1, len(start)))
     applied = np.zeros((n, frames, m.nu))
     dq = np.zeros(nv)
@@ -204,7 +206,7 @@ def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targ
                 mujoco.mj_differentiatePos(m, dq, 1.0, states[t, 1 : 1 + nq], s[1 : 1 + nq])
                 dx = np.concatenate([dq, s[1 + nq : 1 + nq + nv] - states[t, 1 + nq : 1 + nq + nv]])
                 applied[i, t] = targets[t] + alphas[i] * k[t] + np.clip(gain[t] @ dx, -limit, limit)
-            blown |= sim.step(applied[:, t], None if forces is None else forces[t])
+            blown |= sim.step(applied[:, t], None if law is None else law(first + t, sim.qpos, sim.qvel))
             sim.state[blown] = start  # a blown-up rollout is dropped; its state only has to stay finite
             out[:, t + 1] = sim.state
     finally:
@@ -214,25 +216,24 @@ def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targ
 
 def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.ndarray, first: int,
           cfg: PolishConfig, label: str, log: TextIO | None, free: int | None = None,
-          forces: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]]]:  # fmt: skip
+          law: AssistLaw | None = None) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]]]:  # fmt: skip
     """iLQR on the path that plays ``targets`` (F, nu) from ``start`` at clip frame ``first``, changing the
-    targets of its first ``free`` steps only (None: all); ``forces`` the generalised force of every step of the
-    whole path (from the clip's start), held.
+    targets of its first ``free`` steps only (None: all); with ``law``, the generalised force it gives at every step
+    too (in the linearisation and every rollout).
 
     Returns:
         Its targets and states (F + 1, nstate) at the end, and per accepted iteration the cost and step.
     """
     t0 = time.perf_counter()
     frames = len(targets)
-    held = None if forces is None else forces[first : first + frames]
-    states = nominal_states(humanoid, start, targets, held)
+    states = nominal_states(humanoid, start, targets, law, first)
     current = cost.path_cost(states, targets, first)
     history: list[dict[str, Any]] = [{"iteration": 0, "cost": current.total}]
     mu = cfg.mu_init
     alphas = np.asarray(cfg.alphas, dtype=np.float64)
     ref_targets = cost.ref_targets[first : first + frames]
     for it in range(1, cfg.iterations + 1):
-        a, b = linearise(humanoid, states, targets, cfg.eps, held)
+        a, b = linearise(humanoid, states, targets, cfg.eps, law, first)
         derivs = [cost.state_derivatives(states[t + 1], first + t + 1) for t in range(frames)]
         lx, lxx = np.stack([g for g, _ in derivs]), np.stack([h for _, h in derivs])
         lu = 2.0 * cfg.control * (targets - ref_targets)
@@ -243,7 +244,8 @@ def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nda
                 mu *= cfg.mu_factor
                 continue
             k, gain, d1, d2 = bp
-            roll, applied, blown = forward_pass(humanoid, start, states, targets, k, gain, alphas, forces=held)
+            roll, applied, blown = forward_pass(humanoid, start, states, targets, k, gain, alphas, law=law,
+                                                first=first)  # fmt: skip
             trials = [cost.path_cost(roll[i], applied[i], first) for i in range(len(alphas))]
             ok = [i for i, c in enumerate(trials)
                   if not blown[i] and np.isfinite(c.total) and (c.fell_at < 0 or current.fell_at >= 0)]  # fmt: skip
@@ -273,7 +275,7 @@ def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nda
 def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: CharacterState,
            ref_targets: np.ndarray, cfg: PolishConfig, fall_head_error: float, name: str = "",
            log: TextIO | None = None, lqr: LqrConfig | None = None, searcher: Searcher | None = None,
-           forces: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
+           law: AssistLaw | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
     """iLQR from the open-loop path ``targets`` (F, nu) played from ``start`` at the clip's frame 0 (see the
     module docstring): over the whole path at once (``cfg.window`` 0), or window by window, each ``cfg.window``
     frames from the path's current state at its first frame, the next ``cfg.stride`` frames later; each window's
@@ -284,9 +286,9 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
     changed yet start from the searched path tracked by its time-varying LQR (:mod:`samcon.lqr`, these weights):
     ``u*_t + clip(K_t (x_t - x*_t))``. With ``searcher`` (which searches a stretch of frames from a state, as
     SAMCON does, and returns its targets, or None if it fell) the frames after the previous window's look-ahead are
-    searched anew from where that look-ahead left the character (the LQR start where it fell). With ``forces``
-    (F, nv), every step also gets that generalised force, held as it is (the searched path's root forces,
-    :mod:`samcon.assist`).
+    searched anew from where that look-ahead left the character (the LQR start where it fell). With ``law`` (root
+    forces, :mod:`samcon.assist`) every step of every rollout also gets the generalised force it gives, and the
+    linearisation counts its dependence on the state.
 
     Returns:
         The polished targets (F, nu) (``targets`` itself if the polished path costs more or falls where it did
@@ -296,14 +298,14 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
     cost = BodyCost(humanoid, cfg, ref, ref_targets, fall_head_error)
 
     def replayed(path: np.ndarray) -> PathCost:  # the whole path replayed from the clip's start, as judged
-        return cost.path_cost(nominal_states(humanoid, start, path, forces), path, 0)
+        return cost.path_cost(nominal_states(humanoid, start, path, law), path, 0)
 
     try:
         before = replayed(targets)
         best, after, windows, passes = targets, before, [], []
         for p in range(cfg.passes):
             new, pass_windows = _sweep(humanoid, cost, start, best, cfg, lqr, searcher, f"{name} pass {p + 1}", log,
-                                       t0, forces)  # fmt: skip
+                                       t0, law)  # fmt: skip
             windows += pass_windows
             result = replayed(new)
             better = result.total < after.total and (result.fell_at < 0 or after.fell_at >= 0)
@@ -317,7 +319,7 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
             # Then the whole path at once from the best so far: every step lowers its cost (none falls where it did
             # not), so this never undoes the windows' gain.
             whole, _, hist = _ilqr(humanoid, cost, start, best, 0, replace(cfg, iterations=cfg.whole_iterations),
-                                   f"{name} whole path", log, forces=forces)  # fmt: skip
+                                   f"{name} whole path", log, law=law)  # fmt: skip
             passes.append({"whole_steps": len(hist) - 1, "cost": hist[-1]["cost"], "kept": len(hist) > 1})
             if len(hist) > 1:
                 best, after = whole, replayed(whole)
@@ -342,10 +344,10 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
 
 def _sweep(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.ndarray, cfg: PolishConfig,
            lqr: LqrConfig | None, searcher: Searcher | None, name: str, log: TextIO | None, t0: float,
-           forces: np.ndarray | None = None) -> tuple[np.ndarray, list]:  # fmt: skip
+           law: AssistLaw | None = None) -> tuple[np.ndarray, list]:  # fmt: skip
     """One pass of windows over the path (see :func:`polish`): its new targets and per window its iterations."""
     frames = len(targets)
-    states = nominal_states(humanoid, start, targets, forces)
+    states = nominal_states(humanoid, start, targets, law)
     new = targets.copy()
     window = cfg.window or frames
     stride = cfg.stride or window
@@ -353,7 +355,7 @@ def _sweep(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nd
     windows = []
     searched, track = states.copy(), None
     if lqr is not None and cfg.window:
-        a, b = linearise(humanoid, searched, targets, lqr.eps, forces)
+        a, b = linearise(humanoid, searched, targets, lqr.eps, law)
         q = np.diag(state_weights(humanoid, lqr))
         track = riccati(a, b, q, lqr.control * np.eye(humanoid.model.nu), q)[0]
     changed = 0  # frames before this one have been a window's to change
@@ -370,12 +372,11 @@ def _sweep(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nd
             gain[max(0, changed - s) :] = track[max(s, changed) : tail]
             base = np.where((np.arange(s, tail) >= changed)[:, None], targets[s:tail], new[s:tail])
             _, applied, blown = forward_pass(humanoid, states[s], searched[s : tail + 1], base, np.zeros_like(base),
-                                             gain, np.zeros(1), lqr.limit,
-                                             None if forces is None else forces[s:tail])  # fmt: skip
+                                             gain, np.zeros(1), lqr.limit, law, s)  # fmt: skip
             init = init if blown[0] else applied[0]
         label = f"{name} frames {s}-{e}"
         new[s:tail], states[s : tail + 1], hist = _ilqr(humanoid, cost, states[s], init, s, cfg, label, log,
-                                                        free=e - s, forces=forces)  # fmt: skip
+                                                        free=e - s, law=law)  # fmt: skip
         changed, played = max(changed, e), max(played, tail)
         windows.append({"first": s, "end": e, "iterations": hist, "searched": found is not None})
         if log is not None:

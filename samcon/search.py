@@ -22,7 +22,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
@@ -46,8 +46,30 @@ class SearchAbandoned(Exception):
 
 Guide = Callable[[int, np.ndarray], np.ndarray]
 """(segment k, feedback features (n, D)) -> base offsets (n, nu)."""
-AssistLaw = Callable[[int, np.ndarray, np.ndarray], np.ndarray]
-"""(frame f, qpos (n, nq), qvel (n, nv) at f) -> the generalised force held over step f -> f + 1, (n, nv)."""
+class AssistLaw(Protocol):
+    """A generalised force from the state: ``law(f, qpos (n, nq), qvel (n, nv))`` at frame f is the force held over
+    step f -> f + 1, (n, nv); ``law.jacobian(f, qpos, qvel)`` its derivative with respect to the state's tangent
+    coordinates (MuJoCo's: ``mj_differentiatePos`` of qpos, then qvel), (n, nv, 2 nv)."""
+
+    def __call__(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray: ...
+
+    def jacobian(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray: ...
+
+
+class HeldForces:
+    """An :class:`AssistLaw` that gives recorded forces whatever the state: ``forces[f - first]`` at frame f."""
+
+    def __init__(self, forces: np.ndarray, first: int = 0) -> None:
+        self.forces, self.first = np.asarray(forces, dtype=np.float64), first
+
+    def __call__(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        return np.tile(self.forces[frame - self.first], (len(qpos), 1))
+
+    def jacobian(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        nv = self.forces.shape[1]
+        return np.zeros((len(qpos), nv, 2 * nv))
+
+
 Assist = Callable[[MotionLibrary, int, int], AssistLaw]
 """(library, clip, steps) -> the law of a clip's first ``steps`` steps (:class:`samcon.assist.RootAssist`)."""
 Progress = Callable[[int, int, float, float, "int | None"], None]

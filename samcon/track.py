@@ -42,7 +42,17 @@ from samcon.feedback import ClipPlan, FeedbackPolicy, fit_linear, open_loop_poli
 from samcon.lqr import evaluation_policy, grow_paths, play_until_falls
 from samcon.optimise import optimise_gains, plot_history, reduced_indices
 from samcon.polish import Searcher, polish
-from samcon.search import SearchAbandoned, Trajectory, cycle_frames, horizon, reference_frames, replay, samcon
+from samcon.search import (
+    AssistLaw,
+    SearchAbandoned,
+    Trajectory,
+    assisted_replay,
+    cycle_frames,
+    horizon,
+    reference_frames,
+    replay,
+    samcon,
+)
 
 LEARNER = "samcon"
 
@@ -304,21 +314,26 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
 
 
 def polished(traj: Trajectory, cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
-             log: Any, searcher: Searcher | None = None) -> Trajectory:  # fmt: skip
+             log: Any, searcher: Searcher | None = None, law: AssistLaw | None = None) -> Trajectory:  # fmt: skip
     """``traj`` (from the clip's start) after the iLQR polish (:mod:`samcon.polish`), its per-segment record
     recomputed along the polished path (unchanged where the polish was dropped); the polish's seconds count in the
-    oracle's. A path with root forces (``traj.forces``, :mod:`samcon.assist`) is polished with them held."""
+    oracle's. With ``law`` (root forces, :mod:`samcon.assist`) the polish and the replay apply them too, and
+    ``forces`` records those of the polished path."""
     hinge = humanoid.hinge_qpos
     ref = reference_frames(library, clip, traj.frames)
     ref_targets = ref.qpos[1:, hinge]
     targets, summary = polish(humanoid, traj.start_state, traj.targets, ref, ref_targets, cfg.polish,
                               cfg.cost.fall_head_error, traj.clip, log, lqr=cfg.lqr, searcher=searcher,
-                              forces=traj.forces)  # fmt: skip
+                              law=law)  # fmt: skip
     summary["windows"] = [{k: w[k] for k in ("first", "end", "searched")} | {"steps": len(w["iterations"]) - 1}
                           for w in summary["windows"]]  # fmt: skip
     if not summary["kept"]:
         return replace(traj, seconds=traj.seconds + summary["seconds"], polish=summary)
-    states = replay(humanoid, traj.start_state, targets, cfg.gym.max_speed, traj.forces)
+    forces = None
+    if law is None:
+        states = replay(humanoid, traj.start_state, targets, cfg.gym.max_speed)
+    else:
+        states, forces = assisted_replay(humanoid, traj.start_state, targets, law, 0, cfg.gym.max_speed)
     m = humanoid.model
     fk = ForwardKinematics(humanoid, threads=0)
     try:
@@ -338,6 +353,7 @@ def polished(traj: Trajectory, cfg: SamconConfig, humanoid: Humanoid, library: M
         segment_cost=mean(per_frame),
         segment_terms={k: mean(terms[k]) for k in COST_TERMS} | {"fallen": np.bincount(seg, terms["fallen"] * 1.0)},
         end_states=states[traj.bounds[1:] - 1], seconds=traj.seconds + summary["seconds"], polish=summary,
+        forces=forces,
     )  # fmt: skip
 
 

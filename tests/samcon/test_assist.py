@@ -7,6 +7,7 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -18,7 +19,8 @@ from samcon.assist import AssistConfig, RootAssist, judge, main, residual_per_fr
 from samcon.config import CostConfig, SearchConfig
 from samcon.feasibility import body_weight, com_and_clearance, total_mass
 from samcon.feedback import ClipPlan, open_loop_policy
-from samcon.search import assisted_replay, reference_frames, replay, samcon, start_state
+from samcon.lqr import linearise, nominal_states
+from samcon.search import HeldForces, assisted_replay, reference_frames, replay, samcon, start_state
 
 
 @pytest.fixture(scope="module")
@@ -78,8 +80,9 @@ def test_an_assisted_search_replays_bit_exactly_and_a_zero_cap_is_the_plain_sear
     search = SearchConfig(segment_frames=4, samples=8, iterations=2, keep=3, elite=4, lookahead_frames=4)
 
     def run(cap: float | None):
-        assist = None if cap is None else (lambda lib, c, n: RootAssist(humanoid, lib, c, n, AssistConfig(cap=cap,
-                                                                                                          step=2)))
+        assist = (
+            None if cap is None else (lambda lib, c, n: RootAssist(humanoid, lib, c, n, AssistConfig(cap=cap, step=2)))
+        )
         return samcon(humanoid, library, 0, 12, search, CostConfig(), np.random.default_rng(5), assist=assist)
 
     plain, zero, pushed = run(None), run(0.0), run(0.5)
@@ -139,3 +142,36 @@ def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_pat
     text = str(exit_info.value.code)
     assert text.startswith("error: ") and message in text and "\n" not in text
     assert not (tmp_path / "a.json").exists()
+
+
+@pytest.mark.parametrize("cap", [5.0, 0.05])
+def test_the_linearisation_counts_the_laws_dependence_on_the_state(walk, cap: float) -> None:
+    """A step from a state moved 1 mm ahead and 1 cm/s sideways, simulated with the law, against A dx: with the
+    law's Jacobian (unclipped, and clipped at 0.05 body weights) the prediction holds; without it, it does not (by a
+    factor 10^4 unclipped, 20 clipped, where only the sideways part of the pull changes)."""
+    humanoid, library = walk
+    m = humanoid.model
+    law = RootAssist(humanoid, library, 0, 10, AssistConfig(kp=100.0, kd=20.0, cap=cap, step=2))
+    ref = reference_frames(library, 0, 10)
+    start = start_state(library, humanoid, 0)
+    start[1] += 0.03  # 3 cm off the reference: the law pulls with 0.31 body weights, clipped at 0.05 or not at 5
+    targets = ref.qpos[1:2, humanoid.hinge_qpos]
+    assert (
+        np.linalg.norm(law(0, start[None, 1 : 1 + m.nq], start[None, 1 + m.nq :])) < 0.3 * body_weight(humanoid)
+    ) == (cap < 1.0)
+    nominal = nominal_states(humanoid, start, targets, law)
+    dx = np.zeros(2 * m.nv)
+    dx[0], dx[m.nv + 1] = 1e-3, 1e-2
+    moved = start.copy()
+    qpos = moved[1 : 1 + m.nq]
+    mujoco.mj_integratePos(m, qpos, dx[: m.nv], 1.0)
+    moved[1 + m.nq : 1 + m.nq + m.nv] += dx[m.nv :]
+    after = nominal_states(humanoid, moved, targets, law)[1]
+    change = np.zeros(2 * m.nv)
+    mujoco.mj_differentiatePos(m, change[: m.nv], 1.0, nominal[1, 1 : 1 + m.nq], after[1 : 1 + m.nq])
+    change[m.nv :] = after[1 + m.nq :] - nominal[1, 1 + m.nq :]
+    a, _ = linearise(humanoid, nominal, targets, 1e-6, law)
+    a_held, _ = linearise(humanoid, nominal, targets, 1e-6, HeldForces(law(0, start[None, 1 : 1 + m.nq],
+                                                                           start[None, 1 + m.nq :])))  # fmt: skip
+    err, err_held = np.linalg.norm(a[0] @ dx - change), np.linalg.norm(a_held[0] @ dx - change)
+    assert err < 0.05 * np.linalg.norm(change) and err_held > 4 * err

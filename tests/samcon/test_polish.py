@@ -12,7 +12,7 @@ from common.motion.dataset import load_motions
 from samcon.config import PolishConfig
 from samcon.lqr import nominal_states
 from samcon.polish import BodyCost, backward_pass, polish
-from samcon.search import reference_frames, start_state
+from samcon.search import HeldForces, reference_frames, start_state
 
 
 @pytest.fixture(scope="module")
@@ -119,12 +119,13 @@ def test_polish_lowers_the_cost_and_replays(walk, pushed: bool) -> None:
     ref = reference_frames(library, 0, frames)
     ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
     start = start_state(library, humanoid, 0)
-    forces = None
+    law = None
     if pushed:  # a root force changing over the path: 150 N up and a sideways swing of 80 N
         forces = np.zeros((frames, humanoid.nv))
         forces[:, 1], forces[:, 2] = 80.0 * np.sin(np.arange(frames) / 4.0), 150.0
+        law = HeldForces(forces)
     cfg = PolishConfig(iterations=3, window=16, stride=8, lookahead=4, whole_iterations=2)
-    targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, forces=forces)
+    targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, law=law)
     assert summary["kept"] and summary["cost_after"] < summary["cost_before"]
     # the window pass, then the whole path from its result: never dearer than the pass it started from
     assert summary["passes"][-1]["whole_steps"] <= 2 and summary["cost_after"] <= summary["passes"][0]["cost"]
@@ -132,7 +133,7 @@ def test_polish_lowers_the_cost_and_replays(walk, pushed: bool) -> None:
     assert not np.array_equal(targets, ref_targets)
     cost = BodyCost(humanoid, cfg, ref, ref_targets, 0.25)
     try:
-        replayed = cost.path_cost(nominal_states(humanoid, start, targets, forces), targets, 0)
+        replayed = cost.path_cost(nominal_states(humanoid, start, targets, law), targets, 0)
         plain = cost.path_cost(nominal_states(humanoid, start, targets), targets, 0)
     finally:
         cost.close()
