@@ -1,26 +1,32 @@
-"""Tracking with the root force the reference itself needs: whether a clip is out of reach *because* of root forces.
+"""Tracking with a root force: how far a clip is out of reach *because* it needs force no floor contact can give.
 
 ``samcon.feasibility`` measures, from the reference alone, the part of the net external force m (a_com - g) that no
 floor contact can supply (its *residual*: all of it in flight, the part outside the friction cone in contact). A
-clip with a large residual cannot be tracked exactly by any controller of this character, but that alone does not
-say how close one can get. This module answers it by experiment: the same search (and polish) as ``track-samcon``,
-once as it is and once with the residual applied as a **root force** (Yuan & Kitani 2020's residual force control,
-here fixed by the reference, not learned): over every control step f -> f + 1, ``scale`` x the mean of the residual
-vectors of frames f and f + 1, at the free joint's translation dofs (a world-frame force on the pelvis). The force is
-a function of the reference frame alone, so an assisted path is still open loop and replays bit-exactly.
+clip with a residual cannot be tracked exactly by any controller of this character, but that alone does not say how
+close one can get, nor whether the force is what stops the tracker. This module answers it by experiment: the same
+search and polish as ``track-samcon``, with a **root force** (the residual force control of Yuan & Kitani 2020,
+here a fixed law, not learned) on the root body's origin, world frame, at the free joint's translation dofs
+(MuJoCo's ``qfrc_applied``), held over each control step f -> f + 1 like the PD targets
+(:class:`AssistConfig`): ``F = clip(scale F_res(f) + m (kp (p* - p) + kd (v* - v)), cap m |g|)``, p and v the root's
+position and velocity at frame f, p* and v* the reference's, F_res the reference's residual. ``cap`` is the budget:
+a clip that tracks within the target with a small cap and not without one needs root forces, measured; one that
+misses with a generous cap too misses for another reason (a torque limit, a joint range, the search).
 
-A clip that tracks within the target with the assist and not without it is *not trackable without root forces*,
-measured; one that misses with the assist too misses for another reason (a torque limit, a joint range, the search).
+The force is a function of the clip frame and the state, so an assisted path is still open loop and replays
+bit-exactly with the law (:func:`samcon.search.assisted_replay`); the polish rolls out with the law and its
+linearisation counts the law's dependence on the state. The residual fed forward alone (``scale`` 1, no feedback)
+made the search worse on run and jog (README, session 20): the reference's centre of mass falls faster than g at the
+top of run's flights, and pushing the character down there did not make up for the push-off it could not give.
 
-The residual at frame k is measured 1's h-step difference (the mean acceleration under a triangle of half-width h
+The residual at frame k is measure 1's h-step difference (the mean acceleration under a triangle of half-width h
 steps, see ``samcon.feasibility``), on the reference frames the search plays (``search.reference_frames``), with the
 first and last h frames taking their nearest measured neighbour's. The assisted paths are judged here, by the shared
-metrics on the replayed states (:func:`judge`, the evaluator's full-horizon MPJPE and head rule); they never enter a
-run directory: the shared evaluator applies no root force, and an assisted path is not a tracker's result.
+metrics and failure rule on the replayed states (:func:`judge`, the evaluator's full-horizon figures); they never
+enter a run directory: the shared evaluator applies no root force, and an assisted path is not a tracker's result.
 
 Command::
 
-    python -m samcon.assist --config configs/samcon/default.yaml --motions run jog --out runs/assist.json
+    python -m samcon.assist --config configs/samcon/polish.yaml --motions run jog --cap 0.5 --out runs/assist.json
 """
 
 from __future__ import annotations
@@ -58,7 +64,7 @@ from samcon.feasibility import (
     residual_vector,
     total_mass,
 )
-from samcon.search import horizon, reference_frames, replay, samcon
+from samcon.search import assisted_replay, horizon, reference_frames, replay, samcon
 from samcon.track import cli_overrides, clip_generator, polished
 
 
@@ -159,8 +165,8 @@ class RootAssist:
         dF/du = L / |u| (I - u u^T / |u|^2)."""
         u, norm = self._unclipped(frame, qpos, qvel)
         n, nv = len(qpos), self.nv
-        dfdu = np.tile(np.eye(3), (n, 1, 1))
-        over = norm[:, 0] > self.limit
+        dfdu = np.tile(np.eye(3), (n, 1, 1)) if self.limit > 0.0 else np.zeros((n, 3, 3))  # cap 0: F = 0 everywhere
+        over = norm[:, 0] > self.limit if self.limit > 0.0 else np.zeros(n, dtype=bool)
         if over.any():
             unit = u[over] / norm[over]
             dfdu[over] = (self.limit / norm[over])[:, :, None] * (np.eye(3) - unit[:, :, None] * unit[:, None, :])
@@ -204,9 +210,13 @@ def force_summary(forces: np.ndarray, weight: float) -> dict[str, float]:
 
 
 def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
-                   log: Any) -> dict[str, Any]:  # fmt: skip
+                   log: Any, then_caps: Sequence[float] = ()) -> dict[str, Any]:  # fmt: skip
     """One clip: the search of ``cfg`` (and its polish when on) with the root force of ``acfg``, judged open loop
-    from the clip's start with the force replayed. The draws are ``track-samcon``'s (its seed and the clip's name)."""
+    from the clip's start with the force replayed. The draws are ``track-samcon``'s (its seed and the clip's name).
+
+    ``then_caps`` (with the polish on): polish the path again with each of these caps in turn, each from the last
+    one's targets (a continuation that takes the helping force away; with a last cap of 0 the result is an
+    unassisted open-loop path), each judged with its own law (``row["then"]``)."""
     name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
 
     def progress(k: int, segments: int, best: float, seconds: float, back: int | None) -> None:
@@ -218,23 +228,33 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
                   progress=progress, assist=partial(RootAssist, humanoid, cfg=acfg))  # fmt: skip
     ref = reference_frames(library, clip, frames)
     row: dict[str, Any] = {"frames": frames, "step": acfg.step}
-    states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
-    row["searched"] = judge(humanoid, states, ref[1:], cfg.train.eval)
-    if cfg.polish.iterations:
-        traj = polished(traj, cfg, humanoid, library, clip, log, law=RootAssist(humanoid, library, clip, frames, acfg))
-        states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
-        row["polished"] = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(traj.polish["kept"])}
-    row |= {"force_body_weights": force_summary(traj.forces, body_weight(humanoid)), "samples": traj.samples,
-            "minutes": traj.seconds / 60.0, "minutes_per_motion_second": traj.seconds / 60.0 / (frames * library.dt)}
+    row["searched"] = judge(humanoid, replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces),
+                            ref[1:], cfg.train.eval)  # fmt: skip
+    weight = body_weight(humanoid)
+    row["force_body_weights"] = force_summary(traj.forces, weight)
+    for j, cap in enumerate([acfg.cap, *then_caps] if cfg.polish.iterations else []):
+        law = RootAssist(humanoid, library, clip, frames, replace(acfg, cap=cap))
+        traj = polished(traj, cfg, humanoid, library, clip, log, law=law)
+        states, forces = assisted_replay(humanoid, traj.start_state, traj.targets, law, 0, cfg.gym.max_speed)
+        judged = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(traj.polish["kept"])}
+        if j == 0:  # the assisted result: its force replaces the search's
+            row["polished"], row["force_body_weights"] = judged, force_summary(forces, weight)
+            continue
+        row.setdefault("then", []).append(judged | {"cap": cap, "force_body_weights": force_summary(forces, weight)})
+        fell = "" if judged["fell_at"] is None else f", fell at step {judged['fell_at']}"
+        print(f"{name}: polished again with cap {cap:g}: MPJPE-g {judged['mpjpe_g']:.1f} mm{fell}", file=log,
+              flush=True)  # fmt: skip
+    row |= {"samples": traj.samples, "minutes": traj.seconds / 60.0,
+            "minutes_per_motion_second": traj.seconds / 60.0 / (frames * library.dt)}  # fmt: skip
     return row
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m samcon.assist", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--config", default="configs/samcon/default.yaml",
+    parser.add_argument("--config", default="configs/samcon/polish.yaml",
                         help="track-samcon config whose search, cost, polish and seed are used "
-                             "(default: configs/samcon/default.yaml)")  # fmt: skip
+                             "(default: configs/samcon/polish.yaml, the search and the polish)")  # fmt: skip
     parser.add_argument("--motions", nargs="+", default=None, help="clips, overriding train.motions")
     parser.add_argument("--seed", type=int, default=None, help="sampling seed (train.seed)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -249,6 +269,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--cap", type=float, default=defaults.cap, metavar="BODY_WEIGHTS",
                         help="largest root force in body weights; 0: none, the unassisted search through the same "
                              "code (default: %(default)s)")  # fmt: skip
+    parser.add_argument("--then-caps", type=float, nargs="+", default=[], metavar="BODY_WEIGHTS",
+                        help="after the assisted polish, polish again with each of these caps in turn (e.g. 0.25 0.1 "
+                             "0: a continuation that takes the force away; needs a config with a polish)")  # fmt: skip
     parser.add_argument("--step", type=int, default=None, metavar="H",
                         help="differencing step of the residual in control steps (default: per clip, its source "
                              "keyframe spacing rounded up, at least 2, as samcon.feasibility measures it)")  # fmt: skip
@@ -269,6 +292,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                             contact_tolerance=args.contact_tolerance, friction=args.friction)  # fmt: skip
         if cfg.search.sigma_choices:
             raise ConfigError(f"{args.config}: search.sigma_choices is not supported here; set search.sigma_init")
+        if args.then_caps and (not cfg.polish.iterations or min(args.then_caps) < 0):
+            raise ConfigError(f"--then-caps needs caps >= 0 and a config with a polish ({args.config}: "
+                              f"polish.iterations {cfg.polish.iterations})")  # fmt: skip
         if cfg.polish.iterations and cfg.polish.search:
             raise ConfigError(f"{args.config}: polish.search is not supported here (its searches have no root force)")
         humanoid = Humanoid(cfg.gym.physics)
@@ -281,13 +307,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     t0 = time.perf_counter()
     for c, name in enumerate(library.names):
         step = acfg.step or accel_step(1.0 / clips[c].source_fps, library.dt)
-        row = track_assisted(cfg, replace(acfg, step=step), humanoid, library, c, sys.stdout)
+        row = track_assisted(cfg, replace(acfg, step=step), humanoid, library, c, sys.stdout, args.then_caps)
         out["clips"][name] = row
-        final = row.get("polished", row["searched"])
-        fell = "" if final["fell_at"] is None else f", fell at step {final['fell_at']}"
-        print(f"{name}: MPJPE-g {row['searched']['mpjpe_g']:.1f} mm searched"
-              + (f", {final['mpjpe_g']:.1f} polished" if "polished" in row else "")
-              + f"{fell}; root force mean {row['force_body_weights']['mean']:.3f} body weights; "
+        stages = [("searched", row["searched"])] + ([("polished", row["polished"])] if "polished" in row else [])
+        stages += [(f"at cap {t['cap']:g}", t) for t in row.get("then", [])]
+        figures = ", ".join(f"{j['mpjpe_g']:.1f} mm {label}" + ("" if j["fell_at"] is None else f" (fell at step "
+                            f"{j['fell_at']})") for label, j in stages)  # fmt: skip
+        print(f"{name}: MPJPE-g {figures}; root force mean {row['force_body_weights']['mean']:.3f} body weights; "
               f"{row['minutes_per_motion_second']:.2f} min per s of motion", flush=True)  # fmt: skip
         if args.out is not None:
             out["seconds"] = time.perf_counter() - t0

@@ -73,6 +73,10 @@ def test_the_law_by_hand(walk) -> None:
     residual = residual_per_frame(humanoid, reference_frames(library, 0, 30).qpos, library.dt, 2)
     ff = RootAssist(humanoid, library, 0, 30, AssistConfig(scale=1.0, kp=0.0, kd=0.0, cap=10.0, step=2))
     np.testing.assert_allclose(ff(f, qpos[:1], qvel[:1])[0, 0:3], 0.5 * (residual[f] + residual[f + 1]), atol=1e-9)
+    # A zero cap gives no force and no dependence on the state, also where the pull would be 0 (on the reference).
+    none = RootAssist(humanoid, library, 0, 30, AssistConfig(cap=0.0, step=2))
+    on_ref = ref.qpos[f : f + 1], ref.qvel[f : f + 1]
+    assert not none(f, *on_ref).any() and not none.jacobian(f, *on_ref).any()
 
 
 def test_an_assisted_search_replays_bit_exactly_and_a_zero_cap_is_the_plain_search(walk) -> None:
@@ -123,17 +127,21 @@ def test_the_judge_is_the_evaluator(walk) -> None:
 def test_command_writes_searched_and_polished_figures(tmp_path: Path) -> None:
     out = tmp_path / "assist.json"
     main(["--config", "configs/samcon/debug.yaml", "--motions", "walk", "--set", "polish.search=false",
-          "--cap", "0.3", "--out", str(out)])  # fmt: skip
+          "--cap", "0.3", "--then-caps", "0", "--out", str(out)])  # fmt: skip
     row = json.loads(out.read_text())["clips"]["walk"]
     assert row["frames"] == 6 and row["step"] == 2
     assert set(row["searched"]) == {"mpjpe_g", "mpjpe_l", "fell_at"} and "kept" in row["polished"]
     assert 0.0 < row["force_body_weights"]["max"] <= 0.3 + 1e-9
+    # Polished again without the force: an unassisted path, judged with no force.
+    (last,) = row["then"]
+    assert last["cap"] == 0.0 and last["force_body_weights"]["max"] == 0.0 and "kept" in last
 
 
 @pytest.mark.parametrize(
     ("args", "message"),
     [(["--motions", "nosuchclip"], "nosuchclip"), (["--cap", "-1"], "cap"), (["--set", "search.bogus=1"], "bogus"),
-     (["--set", "polish.search=true"], "polish.search")],
+     (["--set", "polish.search=true"], "polish.search"), (["--set", "polish.iterations=0", "--then-caps", "0"],
+                                                          "--then-caps")],
 )  # fmt: skip
 def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as exit_info:
