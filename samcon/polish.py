@@ -357,7 +357,15 @@ def _sweep(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nd
     if lqr is not None and cfg.window:
         a, b = linearise(humanoid, searched, targets, lqr.eps, law)
         q = np.diag(state_weights(humanoid, lqr))
-        track = riccati(a, b, q, lqr.control * np.eye(humanoid.model.nu), q)[0]
+        try:  # a path that went through a blow-up (an earlier cap's path under a smaller one) has no usable LQR
+            track = riccati(a, b, q, lqr.control * np.eye(humanoid.model.nu), q)[0]
+        except np.linalg.LinAlgError:
+            track = None
+        if track is not None and not np.isfinite(track).all():
+            track = None
+        if track is None and log is not None:
+            print(f"{name}: the path's LQR is singular or not finite; new frames start from its targets alone",
+                  file=log, flush=True)  # fmt: skip
     changed = 0  # frames before this one have been a window's to change
     played = 0  # frames before this one have been played in a window's cost
     for j, s in enumerate(firsts):

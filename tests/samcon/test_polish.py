@@ -9,7 +9,7 @@ import pytest
 
 from common.character.humanoid import Humanoid
 from common.motion.dataset import load_motions
-from samcon.config import PolishConfig
+from samcon.config import LqrConfig, PolishConfig
 from samcon.lqr import nominal_states
 from samcon.polish import BodyCost, backward_pass, polish
 from samcon.search import HeldForces, reference_frames, start_state
@@ -160,3 +160,21 @@ def test_windows_ask_the_searcher_for_the_frames_after_the_last_look_ahead(walk)
     _, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, searcher=searcher)
     assert calls == [(12, 16, 12), (16, 20, 16), (20, 24, 20)]
     assert [w["searched"] for w in summary["windows"]] == [False, True, False, True, False]
+
+
+def test_a_path_without_a_usable_lqr_is_polished_from_its_targets(walk, monkeypatch) -> None:
+    """A path through a blow-up has a singular or non-finite LQR (the continuation of samcon.assist met one): the
+    windows then start their new frames from the path's targets, and the polish still returns."""
+    import samcon.polish as polish_module
+
+    def singular(*args, **kwargs):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    monkeypatch.setattr(polish_module, "riccati", singular)
+    humanoid, library = walk
+    ref = reference_frames(library, 0, 24)
+    ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
+    cfg = PolishConfig(iterations=2, window=16, stride=8, lookahead=4)
+    targets, summary = polish(humanoid, start_state(library, humanoid, 0), ref_targets, ref, ref_targets, cfg, 0.25,
+                              lqr=LqrConfig())  # fmt: skip
+    assert summary["kept"] and summary["cost_after"] < summary["cost_before"] and targets.shape == ref_targets.shape
