@@ -90,6 +90,7 @@ def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: 
     n, nu, frames = 2 * m.nv, m.nu, len(targets)
     a_out, b_out = np.zeros((frames, n, n)), np.zeros((frames, n, nu))
     a, b = np.zeros((n, n)), np.zeros((n, nu))
+    scratch = None if law is None else mujoco.MjData(m)  # for the force's central differences
     for f in range(frames):
         mujoco.mj_setState(m, d, states[f], _FULL)
         d.ctrl[:] = targets[f]
@@ -105,7 +106,7 @@ def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: 
             mujoco.mj_step(m, d)
         if jac is not None:
             for dof in np.flatnonzero(np.abs(jac).max(axis=1) > 0):
-                a_f += np.outer(_force_response(humanoid, states[f], targets[f], force, int(dof)), jac[dof])
+                a_f += np.outer(_force_response(humanoid, scratch, states[f], targets[f], force, int(dof)), jac[dof])
         a_out[f], b_out[f] = a_f, b_f
     return a_out, b_out
 
@@ -113,12 +114,11 @@ def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: 
 FORCE_STEP = 0.01  # N: the central-difference step of a generalised force in linearise
 
 
-def _force_response(humanoid: Humanoid, state: np.ndarray, target: np.ndarray, force: np.ndarray,
+def _force_response(humanoid: Humanoid, d: mujoco.MjData, state: np.ndarray, target: np.ndarray, force: np.ndarray,
                     dof: int) -> np.ndarray:  # fmt: skip
-    """d(next state's tangent coordinates) / d(force at ``dof``) over one control step, central differences.
-    Shape: (2 nv,)."""
+    """d(next state's tangent coordinates) / d(force at ``dof``) over one control step, central differences, on
+    the scratch data ``d``. Shape: (2 nv,)."""
     m = humanoid.model
-    d = mujoco.MjData(m)
     ends = []
     for sign in (1.0, -1.0):
         mujoco.mj_setState(m, d, state, _FULL)
