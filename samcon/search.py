@@ -46,6 +46,8 @@ class SearchAbandoned(Exception):
 
 Guide = Callable[[int, np.ndarray], np.ndarray]
 """(segment k, feedback features (n, D)) -> base offsets (n, nu)."""
+
+
 class AssistLaw(Protocol):
     """A generalised force from the state: ``law(f, qpos (n, nq), qvel (n, nv))`` at frame f is the force held over
     step f -> f + 1, (n, nv); ``law.jacobian(f, qpos, qvel)`` its derivative with respect to the state's tangent
@@ -57,13 +59,13 @@ class AssistLaw(Protocol):
 
 
 class HeldForces:
-    """An :class:`AssistLaw` that gives recorded forces whatever the state: ``forces[f - first]`` at frame f."""
+    """An :class:`AssistLaw` that gives recorded forces (F, nv) whatever the state: ``forces[f]`` at frame f."""
 
-    def __init__(self, forces: np.ndarray, first: int = 0) -> None:
-        self.forces, self.first = np.asarray(forces, dtype=np.float64), first
+    def __init__(self, forces: np.ndarray) -> None:
+        self.forces = np.asarray(forces, dtype=np.float64)
 
     def __call__(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
-        return np.tile(self.forces[frame - self.first], (len(qpos), 1))
+        return np.tile(self.forces[frame], (len(qpos), 1))
 
     def jacobian(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
         nv = self.forces.shape[1]
@@ -72,6 +74,7 @@ class HeldForces:
 
 Assist = Callable[[MotionLibrary, int, int], AssistLaw]
 """(library, clip, steps) -> the law of a clip's first ``steps`` steps (:class:`samcon.assist.RootAssist`)."""
+
 Progress = Callable[[int, int, float, float, "int | None"], None]
 """(segment k, segments, cost of the best kept sample, seconds so far, the segment a backtrack returns to or None)."""
 
