@@ -65,7 +65,7 @@ from samcon.feasibility import (
     total_mass,
 )
 from samcon.search import assisted_replay, horizon, reference_frames, replay, samcon
-from samcon.track import cli_overrides, clip_generator, polished
+from samcon.track import cli_overrides, clip_generator, polished, segment_progress
 
 
 @dataclass(frozen=True)
@@ -219,13 +219,9 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
     unassisted open-loop path), each judged with its own law (``row["then"]``)."""
     name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
 
-    def progress(k: int, segments: int, best: float, seconds: float, back: int | None) -> None:
-        again = "" if back is None else f": every kept sample fell, back to segment {back + 1}"
-        print(f"{name} segment {k + 1}/{segments} cost {best:.4g} {seconds:.0f} s{again}", file=log, flush=True)
-
     traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, clip_generator(cfg.train.seed, name),
                   threads=cfg.train.threads, max_speed=cfg.gym.max_speed, rsi_lift=cfg.train.eval.rsi_lift,
-                  progress=progress, assist=partial(RootAssist, humanoid, cfg=acfg))  # fmt: skip
+                  progress=segment_progress(name, log), assist=partial(RootAssist, humanoid, cfg=acfg))  # fmt: skip
     ref = reference_frames(library, clip, frames)
     row: dict[str, Any] = {"frames": frames, "step": acfg.step}
     row["searched"] = judge(humanoid, replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces),

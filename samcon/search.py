@@ -442,12 +442,14 @@ def replay(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, max_speed
            forces: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
     """Plays PD targets (F, nu) open loop from a full state (nstate,), with ``forces`` (F, nv) the generalised force
     of every step too; the state after every step, (F, nstate)."""
-    sim = BatchedSim(humanoid, 1, 0, max_speed, applied=forces is not None)
+    if forces is not None:
+        return assisted_replay(humanoid, start, targets, HeldForces(forces), 0, max_speed)[0]
+    sim = BatchedSim(humanoid, 1, 0, max_speed)
     out = np.zeros((len(targets), len(start)))
     try:
         sim.state[0] = start
         for f, target in enumerate(targets):
-            sim.step(target[None], None if forces is None else forces[f])
+            sim.step(target[None])
             out[f] = sim.state[0]
     finally:
         sim.close()

@@ -44,6 +44,7 @@ from samcon.optimise import optimise_gains, plot_history, reduced_indices
 from samcon.polish import Searcher, polish
 from samcon.search import (
     AssistLaw,
+    Progress,
     SearchAbandoned,
     Trajectory,
     assisted_replay,
@@ -186,15 +187,22 @@ def _plan(traj: Trajectory, fb: FeedbackConfig, paths: Sequence[Trajectory], m: 
     return plan
 
 
-def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, clip: int, rng: np.random.Generator,
-               log: Any) -> tuple[Trajectory, ClipPlan]:  # fmt: skip
-    """SAMCON on one clip, the feedback fit, and its refinements; prints progress per segment into ``log``."""
-    name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
+def segment_progress(name: str, log: Any) -> Progress:
+    """The search's progress line per segment (and per backtrack) for clip ``name``, into ``log``."""
 
     def progress(k: int, segments: int, best: float, seconds: float, back: int | None) -> None:
         again = "" if back is None else f": every kept sample fell, back to segment {back + 1}"
         print(f"{name} segment {k + 1}/{segments} cost {best:.4g} {seconds:.0f} s{again}", file=log, flush=True)
 
+    return progress
+
+
+def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, clip: int, rng: np.random.Generator,
+               log: Any) -> tuple[Trajectory, ClipPlan]:  # fmt: skip
+    """SAMCON on one clip, the feedback fit, and its refinements; prints progress per segment into ``log``."""
+    name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
+
+    progress = segment_progress(name, log)
     fb = cfg.feedback
     common = dict(threads=cfg.train.threads, max_speed=cfg.gym.max_speed, regression_samples=fb.samples,
                   regression=fb.regression, fresh_share=fb.fresh_share, fresh_states=fb.fresh_states,
