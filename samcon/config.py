@@ -6,7 +6,7 @@ motions, evaluation protocol and physics the same way (:mod:`report.runs`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 from common.character.humanoid import PhysicsConfig
@@ -387,6 +387,13 @@ class PolishConfig:
             run's search settings) from where that look-ahead left the character, not from the searched path
             tracked by its LQR (measured on jog: the search from frame 120 fell after 170 s; off in every config
             but debug.yaml). Its samples count in the clip's.
+        follow: With windows and the LQR start (``lqr``), each window's look-ahead frames are played by the LQR of the
+            path the pass starts from, from wherever the window leaves the character (``u*_t + clip(K_t (x_t -
+            x*_t))``, in every rollout; the window's iLQR sees the closed loop ``A + B K`` there), not by targets held
+            as they were: a window is then judged by how well the LQR carries on from its end, which is how the next
+            window's new frames start. One value for every pass, or one per pass (``[false, true]``: the second pass
+            follows the first one's path).
+        follow_lookahead: The look-ahead of the passes that follow (None: ``lookahead``).
         passes: Sweeps of windows over the path, each from the best path so far (a pass that ends dearer or falls
             where the best did not is dropped); 0: none.
         whole_iterations: Then iLQR iterations over the whole path at once, from the best so far (each step lowers
@@ -412,6 +419,8 @@ class PolishConfig:
     passes: int = 1
     whole_iterations: int = 0
     search: bool = False
+    follow: bool | tuple[bool, ...] = False
+    follow_lookahead: int | None = None
     body: float = 100.0
     velocity: float = 0.001
     root_velocity: float = 0.0
@@ -433,6 +442,23 @@ class PolishConfig:
             raise ValueError(f"polish: need passes, whole_iterations >= 0, got {self.passes}, {self.whole_iterations}")
         if self.lookahead < 0:
             raise ValueError(f"polish.lookahead must be >= 0, got {self.lookahead}")
+        if not isinstance(self.follow, bool) and len(self.follow) != self.passes:
+            raise ValueError(f"polish.follow: one value per pass ({self.passes}), got {list(self.follow)}")
+        if self.follow_lookahead is not None and self.follow_lookahead < 0:
+            raise ValueError(f"polish.follow_lookahead must be >= 0 or null, got {self.follow_lookahead}")
+        if self.search and any(self.follows(p) for p in range(self.passes)):
+            raise ValueError("polish.search plays new frames from searches, polish.follow by the searched path's LQR: "
+                             "use one or the other")
+
+    def follows(self, p: int) -> bool:
+        """Whether pass ``p`` (from 0) plays its windows' look-aheads by the LQR."""
+        return self.follow if isinstance(self.follow, bool) else self.follow[p]
+
+    def for_pass(self, p: int) -> PolishConfig:
+        """The settings of pass ``p``: ``follow`` a bool, and ``follow_lookahead`` as its look-ahead if it follows."""
+        follows = self.follows(p)
+        ahead = self.follow_lookahead if follows and self.follow_lookahead is not None else self.lookahead
+        return replace(self, follow=follows, lookahead=ahead)
         if self.window < 0 or self.stride < 0 or (self.window and self.stride > self.window):
             raise ValueError(f"polish: need window >= 0 and 0 <= stride <= window, got {self.window}, {self.stride}")
         if min(self.body, self.velocity, self.root_velocity, self.control) < 0 or self.body == 0:

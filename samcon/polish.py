@@ -26,7 +26,10 @@ optimises the targets of every frame together from the simulator's own derivativ
    windows, each from the state the windows before left, its cost counting ``lookahead`` frames more. Frames no
    window has changed yet start from the searched path tracked by its time-varying LQR (:mod:`samcon.lqr`), or,
    with ``polish.search``, from a SAMCON search from where the last look-ahead left the character: the searched
-   path's own open-loop targets, played from a state off it, fall within a second.
+   path's own open-loop targets, played from a state off it, fall within a second. With ``polish.follow`` a
+   window's look-ahead frames are played by that LQR too, in every rollout, and the window's iLQR sees their closed
+   loop ``A + B K``: a window is then judged by how the LQR carries on from where it leaves the character, which is
+   how the next window's new frames start (:class:`Follow`).
 
 A clip whose reference needs force no contact gives (``samcon.feasibility``) keeps an error there whatever the
 targets; iLQR spends it where it costs least over the window instead of where the greedy search left it.
@@ -180,11 +183,11 @@ def backward_pass(a: np.ndarray, b: np.ndarray, lx: np.ndarray, lxx: np.ndarray,
 
 
 def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targets: np.ndarray, k: np.ndarray,
-                 gain: np.ndarray, alphas: np.ndarray, limit: float = np.inf, law: AssistLaw | None = None,
+                 gain: np.ndarray, alphas: np.ndarray, limit: float | np.ndarray = np.inf, law: AssistLaw | None = None,
                  first: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """Rolls out ``u_t + alpha k_t + clip(K_t dx_t, +-limit)`` for every alpha in one batch from ``start``, dx the
     deviation from ``states`` (with ``law``, the generalised force it gives every rollout at every step too, ``start``
-    at clip frame ``first``).
+    at clip frame ``first``). ``limit``: one for all steps or one per step (F,).
 
     Returns:
         states (A, F + 1, nstate), the targets applied (A, F, nu) and which rollouts blew up (A,).
@@ -197,6 +200,7 @@ def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targ
     applied = np.zeros((n, frames, m.nu))
     dq = np.zeros(nv)
     blown = np.zeros(n, dtype=bool)
+    limit = np.broadcast_to(np.asarray(limit, dtype=np.float64), (frames,))
     try:
         sim.state[:] = start
         out[:, 0] = start
@@ -205,7 +209,7 @@ def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targ
                 s = sim.state[i]
                 mujoco.mj_differentiatePos(m, dq, 1.0, states[t, 1 : 1 + nq], s[1 : 1 + nq])
                 dx = np.concatenate([dq, s[1 + nq : 1 + nq + nv] - states[t, 1 + nq : 1 + nq + nv]])
-                applied[i, t] = targets[t] + alphas[i] * k[t] + np.clip(gain[t] @ dx, -limit, limit)
+                applied[i, t] = targets[t] + alphas[i] * k[t] + np.clip(gain[t] @ dx, -limit[t], limit[t])
             blown |= sim.step(applied[:, t], None if law is None else law(first + t, sim.qpos, sim.qvel))
             sim.state[blown] = start  # a blown-up rollout is dropped; its state only has to stay finite
             out[:, t + 1] = sim.state
@@ -214,19 +218,75 @@ def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targ
     return out, applied, blown
 
 
+@dataclass
+class Follow:
+    """The searched path tracked by its time-varying LQR (:mod:`samcon.lqr`): at clip frame t the targets
+    ``targets[t] + clip(gain[t] (x_t - states[t]), +-limit)``, x_t the character's state."""
+
+    states: np.ndarray  # (F + 1, nstate): the searched path's states
+    targets: np.ndarray  # (F, nu): its targets
+    gain: np.ndarray  # (F, nu, 2 nv): its LQR gains
+    limit: float
+
+    def effective_gain(self, humanoid: Humanoid, states: np.ndarray, first: int) -> np.ndarray:
+        """d(targets)/d(state) of the tracking at ``states`` (T, nstate) from clip frame ``first``: the gain with
+        the rows of clipped corrections zeroed. Shape: (T, nu, 2 nv)."""
+        m = humanoid.model
+        nq, nv = m.nq, m.nv
+        out = self.gain[first : first + len(states)].copy()
+        dq = np.zeros(nv)
+        for i, s in enumerate(states):
+            ref = self.states[first + i]
+            mujoco.mj_differentiatePos(m, dq, 1.0, ref[1 : 1 + nq], s[1 : 1 + nq])
+            dx = np.concatenate([dq, s[1 + nq : 1 + nq + nv] - ref[1 + nq : 1 + nq + nv]])
+            out[i][np.abs(out[i] @ dx) >= self.limit] = 0.0
+        return out
+
+
+def window_rollout(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targets: np.ndarray, k: np.ndarray,
+          gain: np.ndarray, alphas: np.ndarray, first: int, free: int, follow: Follow | None,
+          law: AssistLaw | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """:func:`forward_pass` of a window whose first ``free`` steps take ``targets + alpha k + K dx`` and whose
+    later ones (its look-ahead) hold ``targets`` (``follow`` None) or are played by ``follow``."""
+    if follow is None or free >= len(targets):
+        return forward_pass(humanoid, start, states, targets, k, gain, alphas, law=law, first=first)
+    frames = len(targets)
+    later = slice(first + free, first + frames)
+    states, targets, k, gain = states.copy(), targets.copy(), k.copy(), gain.copy()
+    states[free:frames] = follow.states[later]
+    targets[free:] = follow.targets[later]
+    k[free:] = 0.0
+    gain[free:] = follow.gain[later]
+    limit = np.full(frames, np.inf)
+    limit[free:] = follow.limit
+    return forward_pass(humanoid, start, states, targets, k, gain, alphas, limit, law, first)
+
+
 def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.ndarray, first: int,
           cfg: PolishConfig, label: str, log: TextIO | None, free: int | None = None,
-          law: AssistLaw | None = None) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]]]:  # fmt: skip
+          law: AssistLaw | None = None, follow: Follow | None = None,
+          ) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]]]:  # fmt: skip
     """iLQR on the path that plays ``targets`` (F, nu) from ``start`` at clip frame ``first``, changing the
     targets of its first ``free`` steps only (None: all); with ``law``, the generalised force it gives at every step
-    too (in the linearisation and every rollout).
+    too (in the linearisation and every rollout). With ``follow``, the steps from ``free`` on are played by it (their
+    targets depend on the state; the linearisation's closed loop ``A + B K`` carries the window's changes through
+    them), so that a window is judged by how the searched path's LQR carries on from where it leaves the character.
 
     Returns:
-        Its targets and states (F + 1, nstate) at the end, and per accepted iteration the cost and step.
+        Its targets (those applied) and states (F + 1, nstate) at the end, and per accepted iteration the cost and
+        step.
     """
     t0 = time.perf_counter()
     frames = len(targets)
-    states = nominal_states(humanoid, start, targets, law, first)
+    free = frames if free is None else free
+    follow = follow if free < frames else None
+    if follow is None:
+        states = nominal_states(humanoid, start, targets, law, first)
+    else:
+        zero = np.zeros((frames, humanoid.model.nu, 2 * humanoid.nv))
+        roll, applied, _ = window_rollout(humanoid, start, np.repeat(start[None], frames + 1, 0), targets,
+                                 np.zeros_like(targets), zero, np.ones(1), first, free, follow, law)  # fmt: skip
+        states, targets = roll[0], applied[0]
     current = cost.path_cost(states, targets, first)
     history: list[dict[str, Any]] = [{"iteration": 0, "cost": current.total}]
     mu = cfg.mu_init
@@ -237,6 +297,11 @@ def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nda
         derivs = [cost.state_derivatives(states[t + 1], first + t + 1) for t in range(frames)]
         lx, lxx = np.stack([g for g, _ in derivs]), np.stack([h for _, h in derivs])
         lu = 2.0 * cfg.control * (targets - ref_targets)
+        if follow is not None:  # the look-ahead's targets follow the state: closed-loop dynamics and control cost
+            kf = follow.effective_gain(humanoid, states[free:frames], first + free)
+            a[free:] += b[free:] @ kf
+            lx[free - 1 : frames - 1] += np.einsum("tun,tu->tn", kf, lu[free:])
+            lxx[free - 1 : frames - 1] += 2.0 * cfg.control * np.einsum("tun,tum->tnm", kf, kf)
         accepted = False
         while not accepted and mu <= cfg.mu_max:
             bp = backward_pass(a, b, lx, lxx, lu, 2.0 * cfg.control, mu, free)
@@ -244,8 +309,8 @@ def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nda
                 mu *= cfg.mu_factor
                 continue
             k, gain, d1, d2 = bp
-            roll, applied, blown = forward_pass(humanoid, start, states, targets, k, gain, alphas, law=law,
-                                                first=first)  # fmt: skip
+            roll, applied, blown = window_rollout(humanoid, start, states, targets, k, gain, alphas, first, free,
+                                                  follow, law)  # fmt: skip
             trials = [cost.path_cost(roll[i], applied[i], first) for i in range(len(alphas))]
             ok = [i for i, c in enumerate(trials)
                   if not blown[i] and np.isfinite(c.total) and (c.fell_at < 0 or current.fell_at >= 0)]  # fmt: skip
@@ -284,7 +349,8 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
     A window starts where the windows before left the character, off the searched path, whose open-loop targets
     from there soon fall (jog: every window's starting cost rose tenfold). So with ``lqr`` the frames no window has
     changed yet start from the searched path tracked by its time-varying LQR (:mod:`samcon.lqr`, these weights):
-    ``u*_t + clip(K_t (x_t - x*_t))``. With ``searcher`` (which searches a stretch of frames from a state, as
+    ``u*_t + clip(K_t (x_t - x*_t))``; with ``cfg.follow`` each window's look-ahead is played by it as well. With
+    ``searcher`` (which searches a stretch of frames from a state, as
     SAMCON does, and returns its targets, or None if it fell) the frames after the previous window's look-ahead are
     searched anew from where that look-ahead left the character (the LQR start where it fell). With ``law`` (root
     forces, :mod:`samcon.assist`) every step of every rollout also gets the generalised force it gives, and the
@@ -304,8 +370,8 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
         before = replayed(targets)
         best, after, windows, passes = targets, before, [], []
         for p in range(cfg.passes):
-            new, pass_windows = _sweep(humanoid, cost, start, best, cfg, lqr, searcher, f"{name} pass {p + 1}", log,
-                                       t0, law)  # fmt: skip
+            new, pass_windows = _sweep(humanoid, cost, start, best, cfg.for_pass(p), lqr, searcher,
+                                       f"{name} pass {p + 1}", log, t0, law)  # fmt: skip
             windows += pass_windows
             result = replayed(new)
             better = result.total < after.total and (result.fell_at < 0 or after.fell_at >= 0)
@@ -366,6 +432,7 @@ def _sweep(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nd
         if track is None and log is not None:
             print(f"{name}: the path's LQR is singular or not finite; new frames start from its targets alone",
                   file=log, flush=True)  # fmt: skip
+    follow = None if track is None else Follow(searched, targets, track, lqr.limit)
     changed = 0  # frames before this one have been a window's to change
     played = 0  # frames before this one have been played in a window's cost
     for j, s in enumerate(firsts):
@@ -383,9 +450,11 @@ def _sweep(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nd
                                              gain, np.zeros(1), lqr.limit, law, s)  # fmt: skip
             init = init if blown[0] else applied[0]
         label = f"{name} frames {s}-{e}"
-        new[s:tail], states[s : tail + 1], hist = _ilqr(humanoid, cost, states[s], init, s, cfg, label, log,
-                                                        free=e - s, law=law)  # fmt: skip
-        changed, played = max(changed, e), max(played, tail)
+        got, got_states, hist = _ilqr(humanoid, cost, states[s], init, s, cfg, label, log, free=e - s, law=law,
+                                      follow=follow if cfg.follow else None)  # fmt: skip
+        new[s:tail], states[s : tail + 1] = got, got_states
+        changed = max(changed, e)
+        played = max(played, tail)
         windows.append({"first": s, "end": e, "iterations": hist, "searched": found is not None})
         if log is not None:
             print(f"{label} ({j + 1}/{len(firsts)}): cost {hist[0]['cost']:.4g} -> {hist[-1]['cost']:.4g} in "

@@ -10,8 +10,8 @@ import pytest
 from common.character.humanoid import Humanoid
 from common.motion.dataset import load_motions
 from samcon.config import LqrConfig, PolishConfig
-from samcon.lqr import nominal_states
-from samcon.polish import BodyCost, backward_pass, polish
+from samcon.lqr import linearise, nominal_states, riccati, state_weights
+from samcon.polish import BodyCost, Follow, backward_pass, polish, window_rollout
 from samcon.search import HeldForces, reference_frames, start_state
 
 
@@ -109,11 +109,12 @@ def test_body_cost_derivatives_match_finite_differences(walk) -> None:
         cost.close()
 
 
-@pytest.mark.parametrize("pushed", [False, True])
-def test_polish_lowers_the_cost_and_replays(walk, pushed: bool) -> None:
+@pytest.mark.parametrize("pushed, follow", [(False, False), (True, False), (False, True), (True, True)])
+def test_polish_lowers_the_cost_and_replays(walk, pushed: bool, follow: bool) -> None:
     """From the reference's own targets (open-loop playback) on walk's first 24 frames, two windows of iLQR and two
     iterations on the whole path lower the body error, and the targets returned replay to the cost the polish
-    reports; with root forces held (samcon.assist), replayed with the same forces."""
+    reports; with root forces held (samcon.assist), replayed with the same forces; with ``follow`` (look-aheads
+    played by the path's LQR) too."""
     humanoid, library = walk
     frames = 24
     ref = reference_frames(library, 0, frames)
@@ -124,8 +125,9 @@ def test_polish_lowers_the_cost_and_replays(walk, pushed: bool) -> None:
         forces = np.zeros((frames, humanoid.nv))
         forces[:, 1], forces[:, 2] = 80.0 * np.sin(np.arange(frames) / 4.0), 150.0
         law = HeldForces(forces)
-    cfg = PolishConfig(iterations=3, window=16, stride=8, lookahead=4, whole_iterations=2)
-    targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, law=law)
+    cfg = PolishConfig(iterations=3, window=16, stride=8, lookahead=4, whole_iterations=2, follow=follow)
+    targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, law=law,
+                              lqr=LqrConfig() if follow else None)  # fmt: skip
     assert summary["kept"] and summary["cost_after"] < summary["cost_before"]
     # the window pass, then the whole path from its result: never dearer than the pass it started from
     assert summary["passes"][-1]["whole_steps"] <= 2 and summary["cost_after"] <= summary["passes"][0]["cost"]
@@ -178,3 +180,78 @@ def test_a_path_without_a_usable_lqr_is_polished_from_its_targets(walk, monkeypa
     targets, summary = polish(humanoid, start_state(library, humanoid, 0), ref_targets, ref, ref_targets, cfg, 0.25,
                               lqr=LqrConfig())  # fmt: skip
     assert summary["kept"] and summary["cost_after"] < summary["cost_before"] and targets.shape == ref_targets.shape
+
+
+def test_follow_plays_the_look_ahead_by_the_lqr_and_linearises_its_closed_loop(walk) -> None:
+    """``polish.follow``: after a window's changed targets, the look-ahead's targets are the searched path's LQR's
+    (``u*_t + clip(K_t (x_t - x*_t))`` from the states reached), the path replays open loop bit for bit, and the
+    closed loop ``A + B K`` that the window's iLQR uses predicts how a change of the window's first target carries
+    through the look-ahead (centred differences of the rollout), where the open-loop ``A`` does not."""
+    humanoid, library = walk
+    m = humanoid.model
+    frames, free = 12, 4
+    ref = reference_frames(library, 0, frames)
+    ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
+    start = start_state(library, humanoid, 0)
+    searched = nominal_states(humanoid, start, ref_targets)
+    lqr = LqrConfig()
+    a, b = linearise(humanoid, searched, ref_targets, lqr.eps)
+    q = np.diag(state_weights(humanoid, lqr))
+    follow = Follow(searched, ref_targets, riccati(a, b, q, lqr.control * np.eye(m.nu), q)[0], lqr.limit)
+    zeros_k, zeros_gain = np.zeros_like(ref_targets), np.zeros((frames, m.nu, 2 * m.nv))
+
+    def play(first_change: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        base = ref_targets.copy()
+        base[:free] += 0.05
+        base[0] += first_change
+        roll, applied, blown = window_rollout(humanoid, start, searched, base, zeros_k, zeros_gain, np.ones(1), 0, free,
+                                     follow, None)  # fmt: skip
+        assert not blown.any()
+        return roll[0], applied[0]
+
+    states, applied = play(np.zeros(m.nu))
+    np.testing.assert_array_equal(applied[:free], ref_targets[:free] + 0.05)
+    dq = np.zeros(m.nv)
+    nq = m.nq
+    for t in range(free, frames):
+        mujoco.mj_differentiatePos(m, dq, 1.0, searched[t, 1 : 1 + nq], states[t, 1 : 1 + nq])
+        dx = np.concatenate([dq, states[t, 1 + nq : 1 + nq + m.nv] - searched[t, 1 + nq : 1 + nq + m.nv]])
+        expected = ref_targets[t] + np.clip(follow.gain[t] @ dx, -lqr.limit, lqr.limit)
+        np.testing.assert_allclose(applied[t], expected, rtol=0, atol=1e-12)
+    assert not np.allclose(applied[free:], ref_targets[free:])  # the LQR corrected something
+    np.testing.assert_array_equal(nominal_states(humanoid, start, applied), states)
+
+    a, b = linearise(humanoid, states, applied, 1e-6)
+    closed = a.copy()
+    closed[free:] += b[free:] @ follow.effective_gain(humanoid, states[free:frames], free)
+    rng = np.random.default_rng(2)
+    du = 1e-5 * rng.standard_normal(m.nu)
+    ends = []
+    for sign in (1.0, -1.0):
+        end = play(sign * du)[0][-1]
+        mujoco.mj_differentiatePos(m, dq, 1.0, states[-1, 1 : 1 + nq], end[1 : 1 + nq])
+        ends.append(np.concatenate([dq, end[1 + nq : 1 + nq + m.nv] - states[-1, 1 + nq : 1 + nq + m.nv]]))
+    actual = 0.5 * (ends[0] - ends[1])
+
+    def predicted(jac: np.ndarray) -> np.ndarray:
+        dx = b[0] @ du
+        for t in range(1, frames):
+            dx = jac[t] @ dx
+        return dx
+
+    err_closed = np.linalg.norm(predicted(closed) - actual)
+    err_open = np.linalg.norm(predicted(a) - actual)
+    assert err_closed < 0.05 * np.linalg.norm(actual) < err_open
+
+
+def test_follow_is_set_per_pass() -> None:
+    """``polish.follow`` per pass: each pass's settings say whether it follows and use ``follow_lookahead`` then;
+    one bool applies to every pass; a list of the wrong length is refused."""
+    cfg = PolishConfig(iterations=1, window=8, stride=4, lookahead=2, passes=2, follow=(False, True),
+                       follow_lookahead=6)  # fmt: skip
+    first, second = cfg.for_pass(0), cfg.for_pass(1)
+    assert (first.follow, first.lookahead) == (False, 2)
+    assert (second.follow, second.lookahead) == (True, 6)
+    assert [PolishConfig(passes=3, follow=True, lookahead=5).for_pass(p).lookahead for p in range(3)] == [5, 5, 5]
+    with pytest.raises(ValueError, match="one value per pass"):
+        PolishConfig(passes=2, follow=(True,))

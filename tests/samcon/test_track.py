@@ -104,6 +104,8 @@ def test_a_clips_search_does_not_depend_on_the_clips_before_it(run: Path, tmp_pa
         (["--set", "feedback.visit_lead=-1"], "visit_lead >= 0"),
         (["--set", "optimise.offsets=[knee]"], "optimise.offsets: no actuator 'knee'"),
         (["--set", "optimise.offset_sigma=0"], "offset_sigma > 0"),
+        (["--set", "polish.follow=true"], "polish.search plays new frames from searches"),  # debug.yaml searches
+        (["--set", "polish.follow=[true, false]"], "polish.follow: one value per pass (1)"),
     ],
 )
 def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_path: Path,
