@@ -220,10 +220,11 @@ def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targ
 
 @dataclass
 class Follow:
-    """The searched path tracked by its time-varying LQR (:mod:`samcon.lqr`): at clip frame t the targets
-    ``targets[t] + clip(gain[t] (x_t - states[t]), +-limit)``, x_t the character's state."""
+    """A path tracked by its time-varying LQR (:mod:`samcon.lqr`; in a pass of the polish, the path the pass starts
+    from): at clip frame t the targets ``targets[t] + clip(gain[t] (x_t - states[t]), +-limit)``, x_t the character's
+    state."""
 
-    states: np.ndarray  # (F + 1, nstate): the searched path's states
+    states: np.ndarray  # (F + 1, nstate): the path's states
     targets: np.ndarray  # (F, nu): its targets
     gain: np.ndarray  # (F, nu, 2 nv): its LQR gains
     limit: float
@@ -244,8 +245,8 @@ class Follow:
 
 
 def window_rollout(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targets: np.ndarray, k: np.ndarray,
-          gain: np.ndarray, alphas: np.ndarray, first: int, free: int, follow: Follow | None,
-          law: AssistLaw | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+                   gain: np.ndarray, alphas: np.ndarray, first: int, free: int, follow: Follow | None,
+                   law: AssistLaw | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """:func:`forward_pass` of a window whose first ``free`` steps take ``targets + alpha k + K dx`` and whose
     later ones (its look-ahead) hold ``targets`` (``follow`` None) or are played by ``follow``."""
     if follow is None or free >= len(targets):
@@ -270,7 +271,7 @@ def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nda
     targets of its first ``free`` steps only (None: all); with ``law``, the generalised force it gives at every step
     too (in the linearisation and every rollout). With ``follow``, the steps from ``free`` on are played by it (their
     targets depend on the state; the linearisation's closed loop ``A + B K`` carries the window's changes through
-    them), so that a window is judged by how the searched path's LQR carries on from where it leaves the character.
+    them), so that a window is judged by how that path's LQR carries on from where it leaves the character.
 
     Returns:
         Its targets (those applied) and states (F + 1, nstate) at the end, and per accepted iteration the cost and
@@ -283,9 +284,9 @@ def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nda
     if follow is None:
         states = nominal_states(humanoid, start, targets, law, first)
     else:
-        zero = np.zeros((frames, humanoid.model.nu, 2 * humanoid.nv))
-        roll, applied, _ = window_rollout(humanoid, start, np.repeat(start[None], frames + 1, 0), targets,
-                                 np.zeros_like(targets), zero, np.ones(1), first, free, follow, law)  # fmt: skip
+        zero, anywhere = np.zeros((frames, humanoid.model.nu, 2 * humanoid.nv)), np.repeat(start[None], frames + 1, 0)
+        roll, applied, _ = window_rollout(humanoid, start, anywhere, targets, np.zeros_like(targets), zero,
+                                          np.ones(1), first, free, follow, law)  # fmt: skip
         states, targets = roll[0], applied[0]
     current = cost.path_cost(states, targets, first)
     history: list[dict[str, Any]] = [{"iteration": 0, "cost": current.total}]
