@@ -182,6 +182,14 @@ def backward_pass(a: np.ndarray, b: np.ndarray, lx: np.ndarray, lxx: np.ndarray,
     return k, gain, d1, d2
 
 
+def deviation(m: mujoco.MjModel, ref: np.ndarray, state: np.ndarray, dq: np.ndarray) -> np.ndarray:
+    """The tangent-space deviation (2 nv,) of full state ``state`` from ``ref`` (``mj_differentiatePos`` for the
+    positions, into the scratch ``dq``)."""
+    nq, nv = m.nq, m.nv
+    mujoco.mj_differentiatePos(m, dq, 1.0, ref[1 : 1 + nq], state[1 : 1 + nq])
+    return np.concatenate([dq, state[1 + nq : 1 + nq + nv] - ref[1 + nq : 1 + nq + nv]])
+
+
 def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targets: np.ndarray, k: np.ndarray,
                  gain: np.ndarray, alphas: np.ndarray, limit: float | np.ndarray = np.inf, law: AssistLaw | None = None,
                  first: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
@@ -193,7 +201,7 @@ def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targ
         states (A, F + 1, nstate), the targets applied (A, F, nu) and which rollouts blew up (A,).
     """
     m = humanoid.model
-    nq, nv = m.nq, m.nv
+    nv = m.nv
     n, frames = len(alphas), len(targets)
     sim = BatchedSim(humanoid, n, threads=0, applied=law is not None)
     out = np.zeros((n, frames + 1, len(start)))
@@ -206,9 +214,7 @@ def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targ
         out[:, 0] = start
         for t in range(frames):
             for i in range(n):
-                s = sim.state[i]
-                mujoco.mj_differentiatePos(m, dq, 1.0, states[t, 1 : 1 + nq], s[1 : 1 + nq])
-                dx = np.concatenate([dq, s[1 + nq : 1 + nq + nv] - states[t, 1 + nq : 1 + nq + nv]])
+                dx = deviation(m, states[t], sim.state[i], dq)
                 applied[i, t] = targets[t] + alphas[i] * k[t] + np.clip(gain[t] @ dx, -limit[t], limit[t])
             blown |= sim.step(applied[:, t], None if law is None else law(first + t, sim.qpos, sim.qvel))
             sim.state[blown] = start  # a blown-up rollout is dropped; its state only has to stay finite
@@ -232,15 +238,10 @@ class Follow:
     def effective_gain(self, humanoid: Humanoid, states: np.ndarray, first: int) -> np.ndarray:
         """d(targets)/d(state) of the tracking at ``states`` (T, nstate) from clip frame ``first``: the gain with
         the rows of clipped corrections zeroed. Shape: (T, nu, 2 nv)."""
-        m = humanoid.model
-        nq, nv = m.nq, m.nv
         out = self.gain[first : first + len(states)].copy()
-        dq = np.zeros(nv)
+        dq = np.zeros(humanoid.nv)
         for i, s in enumerate(states):
-            ref = self.states[first + i]
-            mujoco.mj_differentiatePos(m, dq, 1.0, ref[1 : 1 + nq], s[1 : 1 + nq])
-            dx = np.concatenate([dq, s[1 + nq : 1 + nq + nv] - ref[1 + nq : 1 + nq + nv]])
-            out[i][np.abs(out[i] @ dx) >= self.limit] = 0.0
+            out[i][np.abs(out[i] @ deviation(humanoid.model, self.states[first + i], s, dq)) >= self.limit] = 0.0
         return out
 
 

@@ -11,7 +11,7 @@ from common.character.humanoid import Humanoid
 from common.motion.dataset import load_motions
 from samcon.config import LqrConfig, PolishConfig
 from samcon.lqr import linearise, nominal_states, riccati, state_weights
-from samcon.polish import BodyCost, Follow, backward_pass, polish, window_rollout
+from samcon.polish import BodyCost, Follow, backward_pass, deviation, polish, window_rollout
 from samcon.search import HeldForces, reference_frames, start_state
 
 
@@ -216,6 +216,7 @@ def test_follow_plays_the_look_ahead_by_the_lqr_and_linearises_its_closed_loop(w
     for t in range(free, frames):
         mujoco.mj_differentiatePos(m, dq, 1.0, searched[t, 1 : 1 + nq], states[t, 1 : 1 + nq])
         dx = np.concatenate([dq, states[t, 1 + nq : 1 + nq + m.nv] - searched[t, 1 + nq : 1 + nq + m.nv]])
+        np.testing.assert_array_equal(deviation(m, searched[t], states[t], np.zeros(m.nv)), dx)
         expected = ref_targets[t] + np.clip(follow.gain[t] @ dx, -lqr.limit, lqr.limit)
         np.testing.assert_allclose(applied[t], expected, rtol=0, atol=1e-12)
     assert not np.allclose(applied[free:], ref_targets[free:])  # the LQR corrected something
