@@ -12,7 +12,10 @@ velocities stay continuous across the loop point instead of jumping once per cyc
 feet up or down: the root height is set per keyframe so that the character's lowest point stays
 where the clip had it (the seam's own clearance mismatch is taken out over the cycle's last half second). Without
 that correction the jump clip's 15-20 deg hip and knee mismatch put its feet 7.9 cm into the floor after the landing,
-where the clip as recorded has them at most 1.8 cm below it.
+where the clip as recorded has them at most 1.8 cm below it. The bend closes the loop in pose, not in velocity: the
+keyframes within :data:`SEAM_BRIDGE` of the seam are then replaced by one cubic curve across it (:func:`_bridge_seam`),
+so that velocities run on too (zombie_walk's and dance_spin's seams asked for 1.8 and 1.3 body weights of force no
+floor contact gives; bridged, none).
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ from common.maths.rotations import (
 from common.motion.motion import Clip
 
 SEAM_BLEND = 0.5  # s: a wrap clip's end takes its first frame's clearance above the floor over this long
+SEAM_BRIDGE = 0.1  # s: either side of a wrap clip's loop seam, the keyframes are replaced by a C1 bridge
 FLIGHT_CLEARANCE = 0.03  # m: a keyframe whose lowest point is higher above the floor than this is in flight
 
 
@@ -98,6 +102,79 @@ def _bend_loop(clip: Clip, humanoid: Humanoid) -> tuple[np.ndarray, np.ndarray, 
     touch[[0, -1]] = True
     root_pos[:, 2] += np.interp(clip.times, clip.times[touch], shift[touch])
     return root_pos, root_rot, joint_rot
+
+
+def _bridge_seam(
+    clip: Clip,
+    humanoid: Humanoid,
+    root_pos: np.ndarray,
+    root_rot: np.ndarray,
+    joint_rot: np.ndarray,
+    width: float = SEAM_BRIDGE,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Makes a closed wrap clip's loop seam continuous in velocity: returns root_pos, root_rot, joint_rot bridged.
+
+    The bend closes the loop in pose, not in velocity: where the recorded end moves differently from the recorded
+    start (or its last keyframes are glitches: zombie_walk's root rises 1.5 cm in its last 1/60 s), the reference's
+    velocities jump at every seam, up to 1.5 m/s at the root within one frame, a force no contact gives. The k
+    keyframes either side of the seam (k = ``width`` times the clip's rate, at least 2) are replaced by one cubic
+    Hermite curve per coordinate, run across the seam in the unrolled clip (the next cycle moved by the cycle
+    transform Delta) from the keyframe k before the seam to the keyframe k after it, with their central-difference
+    velocities. Rotations (root and joints) are bridged as rotation vectors about the seam's pose: the window turns by
+    far less than pi. The seam keyframes stay related by Delta, so the loop stays closed; keyframes outside the window
+    are left as they are. A foot that lands inside the window would overshoot the floor on the cubic: there the root
+    is lifted to keep the bridged pose's lowest point no lower than the window's ends' (or the floor).
+
+    Args:
+        clip: The wrap clip (its times and cycle transform).
+        humanoid: The model (its collision geoms).
+        root_pos, root_rot, joint_rot: Its closed keyframes (:func:`_bend_loop`). Shapes: (M, 3), (M, 4), (M, J, 4).
+        width: Seconds either side of the seam; 0 leaves the keyframes as they are.
+    """
+    m = len(clip.times)
+    k = min(max(2, int(round(width * clip.source_fps))), (m - 3) // 2) if width > 0.0 else 0
+    if k < 1:
+        return root_pos, root_rot, joint_rot
+    yaw, shift = cycle_transform(clip)
+    q_yaw = quat_from_yaw(np.array(yaw))
+    # The unrolled window: keyframes m-k-2 .. m-1 of this cycle, then 1 .. k+1 of the next (moved by Delta).
+    end, nxt = np.arange(m - k - 2, m), np.arange(1, k + 2)
+    times = np.concatenate([clip.times[end], clip.duration + clip.times[nxt]])
+    pos = np.concatenate([root_pos[end], quat_rotate(q_yaw, root_pos[nxt]) + shift])
+    rot = np.concatenate([root_rot[end], quat_mul(q_yaw, root_rot[nxt])])
+    jrot = np.concatenate([joint_rot[end], joint_rot[nxt]])
+    seam = k + 1  # keyframe m-1 of this cycle, keyframe 0 of the next
+    # Tangent coordinates: the root position, then rotation vectors about the seam's pose (left perturbations).
+    coords = np.concatenate(
+        [pos, quat_to_rotvec(quat_mul(rot, quat_conj(rot[seam]))),
+         quat_to_rotvec(quat_mul(jrot, quat_conj(jrot[seam]))).reshape(len(times), -1)], axis=1,
+    )  # fmt: skip
+    a, b = 1, 2 * k + 1
+    span = times[b] - times[a]
+    va = (coords[a + 1] - coords[a - 1]) / (times[a + 1] - times[a - 1])
+    vb = (coords[b + 1] - coords[b - 1]) / (times[b + 1] - times[b - 1])
+    u = ((times[a + 1 : b] - times[a]) / span)[:, None]
+    bridge = ((2 * u**3 - 3 * u**2 + 1) * coords[a] + (u**3 - 2 * u**2 + u) * span * va
+              + (-2 * u**3 + 3 * u**2) * coords[b] + (u**3 - u**2) * span * vb)  # fmt: skip
+    inner = np.arange(a + 1, b)
+    new_pos = bridge[:, 0:3]
+    new_rot = quat_mul(quat_from_rotvec(bridge[:, 3:6]), rot[seam])
+    new_jrot = quat_mul(quat_from_rotvec(bridge[:, 6:].reshape(len(inner), -1, 3)), jrot[seam][None])
+    # A foot that comes down inside the window overshoots the floor on the cubic (dance_a's by 1.6 cm): the root is
+    # lifted so that no bridged keyframe reaches lower than the window's ends do (or the floor, if they are above it).
+    floor = min(0.0, *_lowest_point(humanoid, pos[[a, b]], rot[[a, b]], jrot[[a, b]]))
+    new_pos[:, 2] += np.maximum(0.0, floor - _lowest_point(humanoid, new_pos, new_rot, new_jrot))
+    root_pos, root_rot, joint_rot = root_pos.copy(), root_rot.copy(), joint_rot.copy()
+    mine, theirs = inner <= seam, inner >= seam  # the seam is both this cycle's last keyframe and the next's first
+    root_pos[end[inner[mine]]] = new_pos[mine]
+    root_rot[end[inner[mine]]] = new_rot[mine]
+    joint_rot[end[inner[mine]]] = new_jrot[mine]
+    first = inner[theirs] - seam  # keyframes 0 .. k-1 of the first cycle, moved back by Delta^-1
+    q_back = quat_conj(q_yaw)
+    root_pos[first] = quat_rotate(q_back, new_pos[theirs] - shift)
+    root_rot[first] = quat_mul(q_back, new_rot[theirs])
+    joint_rot[first] = new_jrot[theirs]
+    return root_pos, quat_fix_hemisphere(root_rot, axis=0), quat_fix_hemisphere(joint_rot, axis=0)
 
 
 def _lowest_point(humanoid: Humanoid, root_pos: np.ndarray, root_rot: np.ndarray, joint_rot: np.ndarray) -> np.ndarray:
@@ -177,15 +254,16 @@ def _sample_keyframes(
     return pos, rot, jrot
 
 
-def resample_clip(clip: Clip, humanoid: Humanoid) -> ClipFrames:
+def resample_clip(clip: Clip, humanoid: Humanoid, seam_bridge: float = SEAM_BRIDGE) -> ClipFrames:
     """Resamples a clip to the control rate and computes every per-frame quantity.
 
     Velocities are central differences over the grid (one-sided at the ends of a one-shot clip); the frames one
-    step outside the grid come from the neighbouring cycles of a wrap clip.
+    step outside the grid come from the neighbouring cycles of a wrap clip. ``seam_bridge``: seconds either side of
+    a wrap clip's loop seam bridged by :func:`_bridge_seam` (0: the bent clip as it is, as before session 22).
     """
     dt = humanoid.physics.control_dt
     if clip.loop:
-        root_pos, root_rot, joint_rot = _bend_loop(clip, humanoid)
+        root_pos, root_rot, joint_rot = _bridge_seam(clip, humanoid, *_bend_loop(clip, humanoid), seam_bridge)
         # A cycle of a whole number of frames keeps every gym time on the grid (queries are plain lookups and the
         # loop seam is exact): the clip is time-scaled by at most half a step per cycle (<= 1% for the bundled clips).
         cycle_frames = max(2, int(round(clip.duration / dt)))
@@ -284,8 +362,8 @@ class MotionLibrary:
         return np.where(np.abs(change - turns) < 1e-6, turns, 0.0)
 
     @classmethod
-    def from_clips(cls, clips: list[Clip], humanoid: Humanoid) -> MotionLibrary:
-        return cls([resample_clip(c, humanoid) for c in clips], humanoid.physics.control_dt)
+    def from_clips(cls, clips: list[Clip], humanoid: Humanoid, seam_bridge: float = SEAM_BRIDGE) -> MotionLibrary:
+        return cls([resample_clip(c, humanoid, seam_bridge) for c in clips], humanoid.physics.control_dt)
 
     @property
     def num_clips(self) -> int:

@@ -15,7 +15,14 @@ from common.character.humanoid import BodyGeometry, Humanoid
 from common.maths.rotations import angular_velocity, quat_geodesic_angle, quat_rotate, quat_yaw
 from common.motion.dataset import bundled_motion_dir, load_dataset, resolve_clips, save_dataset
 from common.motion.library import MotionLibrary
-from common.motion.motion import MotionFormatError, read_clip_pack, read_deepmimic, y_up_to_z_up_pos, y_up_to_z_up_quat
+from common.motion.motion import (
+    Clip,
+    MotionFormatError,
+    read_clip_pack,
+    read_deepmimic,
+    y_up_to_z_up_pos,
+    y_up_to_z_up_quat,
+)
 
 DT = 1.0 / 60.0
 
@@ -75,7 +82,7 @@ def test_resampling_hits_source_keyframes(walk_lib: MotionLibrary) -> None:
     assert walk_lib.num_frames[0] == 77 and walk_lib.duration[0] == pytest.approx(76 * DT)
     scale = walk_lib.duration[0] / src.duration
     assert abs(scale - 1.0) < 1e-4
-    k = np.arange(0, 30)
+    k = np.arange(3, 30)  # keyframes 0-2 (0.1 s) are the loop seam's bridge
     got = walk_lib.query(np.zeros(len(k), dtype=int), src.times[k] * scale).qpos[:, :2]
     np.testing.assert_allclose(got, src.root_pos[k, :2], atol=1e-9)
 
@@ -196,6 +203,77 @@ def test_loop_bend_keeps_the_recorded_flight_parabola(humanoid: Humanoid) -> Non
     touch = ~flight & (t < clip.duration - 0.5)
     assert touch.sum() >= 3
     np.testing.assert_allclose(bent[touch], recorded[touch], atol=1e-9)
+
+
+def _bridge_case(humanoid: Humanoid) -> tuple[Clip, np.ndarray, np.ndarray, np.ndarray]:
+    """A closed wrap clip at 10 Hz over 1 s whose velocities jump at the seam: root x = t^2 (the cycle transform
+    moves the next cycle 1 m along x: its root starts at 0 m/s where this one ends at 2 m/s) and the neck turned
+    about z by t (1 - t) rad (1 rad/s at the start, -1 rad/s at the end), 2 m up (no foot near the floor)."""
+    t = np.linspace(0.0, 1.0, 11)
+    root_pos = np.stack([t**2, np.zeros_like(t), np.full_like(t, 2.0)], axis=1)
+    root_rot = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))
+    joint_rot = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 12, 1))
+    half = 0.5 * t * (1.0 - t)
+    joint_rot[:, 1] = np.stack([np.cos(half), 0 * t, 0 * t, np.sin(half)], axis=1)  # 1: the neck
+    clip = Clip("bridge", "bridge.txt", True, t, root_pos, root_rot, joint_rot)
+    return clip, root_pos, root_rot, joint_rot
+
+
+def test_loop_seam_bridge_by_hand(humanoid: Humanoid) -> None:
+    """At 10 Hz the bridge replaces 2 keyframes either side of the seam by the cubic Hermite curve from t = 0.8
+    (x = 0.64, v = 1.6) to the next cycle's t = 0.2 (x = 1.04, v = 0.4) over 0.4 s; at the seam it is
+    0.32 + 0.125 * 0.4 * 1.6 + 0.52 - 0.125 * 0.4 * 0.4 = 0.90, at t = 0.9 0.785 (weights 0.84375, 0.140625,
+    0.15625, -0.046875). The neck angle: from 0.16 (v = -0.6) to 0.16 (v = 0.6), 0.10 at the seam."""
+    from common.motion.library import _bridge_seam
+
+    clip, root_pos, root_rot, joint_rot = _bridge_case(humanoid)
+    pos, rot, jrot = _bridge_seam(clip, humanoid, root_pos, root_rot, joint_rot, width=0.1)
+    np.testing.assert_allclose(pos[[9, 10, 0, 1], 0], [0.785, 0.90, -0.10, 0.785 - 1.0 + 0.2], atol=1e-12)
+    # t = 0.1 in the next cycle is u = 0.75: the mirror weights of u = 0.25 on the swapped ends.
+    x_11 = 0.15625 * 0.64 + 0.046875 * 0.4 * 1.6 + 0.84375 * 1.04 - 0.140625 * 0.4 * 0.4
+    assert pos[1, 0] == pytest.approx(x_11 - 1.0, abs=1e-12)
+    neck = 2.0 * np.arctan2(jrot[:, 1, 3], jrot[:, 1, 0])
+    assert neck[10] == pytest.approx(0.10, abs=1e-12) and neck[0] == pytest.approx(0.10, abs=1e-12)
+    # Outside the window nothing moves; the rest of the pose is untouched; the loop stays closed.
+    keep = np.arange(2, 9)
+    np.testing.assert_array_equal(pos[keep], root_pos[keep])
+    np.testing.assert_allclose(neck[keep], 2.0 * np.arctan2(joint_rot[keep, 1, 3], joint_rot[keep, 1, 0]), atol=1e-15)
+    np.testing.assert_allclose(pos[:, 1:], root_pos[:, 1:], atol=1e-12)
+    np.testing.assert_allclose(rot, root_rot, atol=1e-12)
+    others = np.delete(np.arange(12), 1)
+    np.testing.assert_allclose(jrot[:, others], joint_rot[:, others], atol=1e-12)
+    # The width 0 leaves the clip as it was.
+    same = _bridge_seam(clip, humanoid, root_pos, root_rot, joint_rot, width=0.0)
+    assert all(a is b for a, b in zip(same, (root_pos, root_rot, joint_rot), strict=True))
+
+
+def test_loop_seam_is_continuous_in_velocity(humanoid: Humanoid) -> None:
+    """zombie_walk's root velocity jumped at every seam (its last keyframes rise 1.5 cm in 1/60 s); bridged, the
+    frame-to-frame change of the reference's root velocity at the seams is well below the largest inside the cycle."""
+    lib = MotionLibrary.from_clips(resolve_clips(["zombie_walk"]), humanoid)
+    n = lib.num_frames[0] - 1
+    t = np.arange(0, 3 * n + 1) * lib.dt
+    vel = lib.query(np.zeros(len(t), dtype=int), t).qvel[:, :3]
+    change = np.linalg.norm(np.diff(vel, axis=0), axis=-1)  # change[i]: frame i -> i + 1
+    seams = np.concatenate([np.arange(s - 3, s + 3) for s in (n, 2 * n)])
+    inside = np.setdiff1d(np.arange(len(change)), seams)
+    # Unbridged, 0.54 m/s at the seams, the largest change of the whole motion; bridged 0.12, inside up to 0.38.
+    assert change[seams].max() < 0.5 * change[inside].max()
+
+
+def test_loop_seam_bridge_lifts_a_foot_that_lands_in_the_window(humanoid: Humanoid) -> None:
+    """dance_a's foot lands just before the seam: the cubic would take it 1.6 cm into the floor, which the bridge's
+    lift takes out (no bridged keyframe lower than the floor or the window's ends)."""
+    from common.motion.library import _bend_loop, _bridge_seam, _lowest_point
+
+    clip = resolve_clips(["dance_a"])[0]
+    bent = _bend_loop(clip, humanoid)
+    pos, rot, jrot = _bridge_seam(clip, humanoid, *bent)
+    low = _lowest_point(humanoid, pos, rot, jrot)
+    window = np.r_[0:6, len(low) - 6 : len(low)]
+    assert low[window].min() > -1e-9
+    lifted = pos[window, 2] - bent[0][window, 2]
+    assert lifted.max() > 0.005  # the lift did something (else the check above would be empty)
 
 
 def test_one_shot_clip_holds_last_frame(lib3: MotionLibrary) -> None:
