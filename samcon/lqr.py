@@ -117,11 +117,14 @@ FORCE_STEP = 0.01  # N: the central-difference step of a generalised force in li
 def _force_response(humanoid: Humanoid, d: mujoco.MjData, state: np.ndarray, target: np.ndarray, force: np.ndarray,
                     dof: int) -> np.ndarray:  # fmt: skip
     """d(next state's tangent coordinates) / d(force at ``dof``) over one control step, central differences, on
-    the scratch data ``d``. Shape: (2 nv,)."""
+    the scratch data ``d``. Shape: (2 nv,). The solver's warm start is not part of ``state`` (``mjSTATE_FULLPHYSICS``
+    leaves it out): it is zeroed, as in a fresh ``MjData``, so that the result does not depend on what ``d`` did
+    before (reused as it was, it moved the differences by 1e-13, which the polish's iterations amplified)."""
     m = humanoid.model
     ends = []
     for sign in (1.0, -1.0):
         mujoco.mj_setState(m, d, state, _FULL)
+        d.qacc_warmstart[:] = 0.0
         d.ctrl[:], d.qfrc_applied[:] = target, force
         d.qfrc_applied[dof] += sign * FORCE_STEP
         for _ in range(humanoid.physics.substeps):

@@ -85,6 +85,27 @@ def test_linearisation_predicts_a_rollout_of_a_control_step(walk) -> None:
     np.testing.assert_allclose(predicted, measured, atol=1e-4 * np.abs(measured).max())
 
 
+def test_a_force_response_does_not_depend_on_what_its_scratch_data_did_before() -> None:
+    """The root force's central differences reuse one MjData; the solver's warm start is not part of the saved state,
+    so the scratch data's history used to reach the result (roll, lying on the floor, 300 N up at the root: by 5e-14
+    of 5.5e-4, which the polish's iterations amplified). Now a used MjData gives the fresh one's result bit for bit."""
+    from samcon.lqr import _force_response
+    from samcon.search import reference_frames, start_state
+
+    humanoid = Humanoid()
+    library = load_motions(["roll"], humanoid)
+    m = humanoid.model
+    targets = reference_frames(library, 0, 6).qpos[1:, humanoid.hinge_qpos]
+    states = nominal_states(humanoid, start_state(library, humanoid, 0), targets)
+    force = np.zeros(m.nv)
+    force[2] = 300.0
+    fresh = _force_response(humanoid, mujoco.MjData(m), states[3], targets[3], force, 2)
+    used = mujoco.MjData(m)
+    _force_response(humanoid, used, states[1], targets[1], force, 0)  # leaves its warm start behind
+    np.testing.assert_array_equal(_force_response(humanoid, used, states[3], targets[3], force, 2), fresh)
+    assert np.abs(fresh).max() > 1e-4
+
+
 def test_policy_replays_its_path_bit_exactly_from_the_clip_start(walk) -> None:
     """On the path's own states the deviation is exactly zero, so the LQR policy plays the path's targets: the
     evaluator's episode from t = 0 scores exactly as the open-loop targets do."""
