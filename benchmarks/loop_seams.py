@@ -1,7 +1,7 @@
 """What each looping clip's reference asks of the character at its loop seams, with and without the seam bridge.
 
-The library closes a wrap clip's loop in pose (the bend) and, since session 22, in velocity: the keyframes within
-``SEAM_BRIDGE`` seconds either side of the seam are replaced by a cubic Hermite curve across it
+The library closes a wrap clip's loop in pose (the bend) and, asked for (``seam_bridge``, off by default), in velocity:
+the keyframes within ``SEAM_BRIDGE`` seconds either side of the seam are replaced by a cubic Hermite curve across it
 (``common/motion/library.py``). This prints, per wrap clip and for the bridge off (0 s) and on, over the first 512
 frames: the largest residual force (``samcon.feasibility``: the force on the centre of mass no floor contact can give,
 in body weights) within 4 frames of a seam and elsewhere, its mean, the largest frame-to-frame change of the root's

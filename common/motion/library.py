@@ -12,10 +12,11 @@ velocities stay continuous across the loop point instead of jumping once per cyc
 feet up or down: the root height is set per keyframe so that the character's lowest point stays
 where the clip had it (the seam's own clearance mismatch is taken out over the cycle's last half second). Without
 that correction the jump clip's 15-20 deg hip and knee mismatch put its feet 7.9 cm into the floor after the landing,
-where the clip as recorded has them at most 1.8 cm below it. The bend closes the loop in pose, not in velocity: the
-keyframes within :data:`SEAM_BRIDGE` of the seam are then replaced by one cubic curve across it (:func:`_bridge_seam`),
-so that velocities run on too (zombie_walk's and dance_spin's seams asked for 1.8 and 1.3 body weights of force no
-floor contact gives; bridged, none).
+where the clip as recorded has them at most 1.8 cm below it. The bend closes the loop in pose, not in velocity. Asked
+for (``seam_bridge``; off by default), the keyframes within that many seconds of the seam are then replaced by one
+cubic curve across it (:func:`_bridge_seam`), so that velocities run on too: zombie_walk's and dance_spin's seams
+ask for 1.8 and 1.3 body weights of force no floor contact gives, bridged none. It is off by default because it made
+SAMCON's search on zombie_walk and cartwheel worse on every draw measured (session 22, README).
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ from common.maths.rotations import (
 from common.motion.motion import Clip
 
 SEAM_BLEND = 0.5  # s: a wrap clip's end takes its first frame's clearance above the floor over this long
-SEAM_BRIDGE = 0.1  # s: either side of a wrap clip's loop seam, the keyframes are replaced by a C1 bridge
+SEAM_BRIDGE = 0.1  # s: with the seam bridge (opt-in), the keyframes this close to a wrap clip's loop seam are bridged
 FLIGHT_CLEARANCE = 0.03  # m: a keyframe whose lowest point is higher above the floor than this is in flight
 
 
@@ -254,12 +255,13 @@ def _sample_keyframes(
     return pos, rot, jrot
 
 
-def resample_clip(clip: Clip, humanoid: Humanoid, seam_bridge: float = SEAM_BRIDGE) -> ClipFrames:
+def resample_clip(clip: Clip, humanoid: Humanoid, seam_bridge: float = 0.0) -> ClipFrames:
     """Resamples a clip to the control rate and computes every per-frame quantity.
 
     Velocities are central differences over the grid (one-sided at the ends of a one-shot clip); the frames one
     step outside the grid come from the neighbouring cycles of a wrap clip. ``seam_bridge``: seconds either side of
-    a wrap clip's loop seam bridged by :func:`_bridge_seam` (0: the bent clip as it is, as before session 22).
+    a wrap clip's loop seam bridged by :func:`_bridge_seam` (0: off, the bent clip as it is; :data:`SEAM_BRIDGE`
+    is the width measured in session 22).
     """
     dt = humanoid.physics.control_dt
     if clip.loop:
@@ -362,7 +364,7 @@ class MotionLibrary:
         return np.where(np.abs(change - turns) < 1e-6, turns, 0.0)
 
     @classmethod
-    def from_clips(cls, clips: list[Clip], humanoid: Humanoid, seam_bridge: float = SEAM_BRIDGE) -> MotionLibrary:
+    def from_clips(cls, clips: list[Clip], humanoid: Humanoid, seam_bridge: float = 0.0) -> MotionLibrary:
         return cls([resample_clip(c, humanoid, seam_bridge) for c in clips], humanoid.physics.control_dt)
 
     @property

@@ -82,7 +82,7 @@ def test_resampling_hits_source_keyframes(walk_lib: MotionLibrary) -> None:
     assert walk_lib.num_frames[0] == 77 and walk_lib.duration[0] == pytest.approx(76 * DT)
     scale = walk_lib.duration[0] / src.duration
     assert abs(scale - 1.0) < 1e-4
-    k = np.arange(3, 30)  # keyframes 0-2 (0.1 s) are the loop seam's bridge
+    k = np.arange(0, 30)
     got = walk_lib.query(np.zeros(len(k), dtype=int), src.times[k] * scale).qpos[:, :2]
     np.testing.assert_allclose(got, src.root_pos[k, :2], atol=1e-9)
 
@@ -248,17 +248,27 @@ def test_loop_seam_bridge_by_hand(humanoid: Humanoid) -> None:
 
 
 def test_loop_seam_is_continuous_in_velocity(humanoid: Humanoid) -> None:
-    """zombie_walk's root velocity jumped at every seam (its last keyframes rise 1.5 cm in 1/60 s); bridged, the
-    frame-to-frame change of the reference's root velocity at the seams is well below the largest inside the cycle."""
-    lib = MotionLibrary.from_clips(resolve_clips(["zombie_walk"]), humanoid)
-    n = lib.num_frames[0] - 1
-    t = np.arange(0, 3 * n + 1) * lib.dt
-    vel = lib.query(np.zeros(len(t), dtype=int), t).qvel[:, :3]
-    change = np.linalg.norm(np.diff(vel, axis=0), axis=-1)  # change[i]: frame i -> i + 1
-    seams = np.concatenate([np.arange(s - 3, s + 3) for s in (n, 2 * n)])
-    inside = np.setdiff1d(np.arange(len(change)), seams)
-    # Unbridged, 0.54 m/s at the seams, the largest change of the whole motion; bridged 0.12, inside up to 0.38.
-    assert change[seams].max() < 0.5 * change[inside].max()
+    """zombie_walk's root velocity jumps at every seam (its last keyframes rise 1.5 cm in 1/60 s); bridged (opt-in),
+    the frame-to-frame change of the reference's root velocity at the seams is well below the largest inside the
+    cycle. The default library leaves the seam as it was."""
+    from common.motion.library import SEAM_BRIDGE
+
+    clips = resolve_clips(["zombie_walk"])
+    for bridge in (0.0, SEAM_BRIDGE):
+        lib = MotionLibrary.from_clips(clips, humanoid, seam_bridge=bridge)
+        n = lib.num_frames[0] - 1
+        t = np.arange(0, 3 * n + 1) * lib.dt
+        vel = lib.query(np.zeros(len(t), dtype=int), t).qvel[:, :3]
+        change = np.linalg.norm(np.diff(vel, axis=0), axis=-1)  # change[i]: frame i -> i + 1
+        seams = np.concatenate([np.arange(s - 3, s + 3) for s in (n, 2 * n)])
+        inside = np.setdiff1d(np.arange(len(change)), seams)
+        # Unbridged, 0.54 m/s at the seams, the largest change of the whole motion; bridged 0.12, inside up to 0.38.
+        if bridge:
+            assert change[seams].max() < 0.5 * change[inside].max()
+        else:
+            assert change[seams].max() >= change[inside].max()
+    default = MotionLibrary.from_clips(clips, humanoid)
+    np.testing.assert_array_equal(default.frames.qpos, MotionLibrary.from_clips(clips, humanoid, 0.0).frames.qpos)
 
 
 def test_loop_seam_bridge_lifts_a_foot_that_lands_in_the_window(humanoid: Humanoid) -> None:
@@ -268,7 +278,7 @@ def test_loop_seam_bridge_lifts_a_foot_that_lands_in_the_window(humanoid: Humano
 
     clip = resolve_clips(["dance_a"])[0]
     bent = _bend_loop(clip, humanoid)
-    pos, rot, jrot = _bridge_seam(clip, humanoid, *bent)
+    pos, rot, jrot = _bridge_seam(clip, humanoid, *bent, width=0.1)
     low = _lowest_point(humanoid, pos, rot, jrot)
     window = np.r_[0:6, len(low) - 6 : len(low)]
     assert low[window].min() > -1e-9
