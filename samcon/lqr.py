@@ -119,7 +119,7 @@ def _force_response(humanoid: Humanoid, d: mujoco.MjData, state: np.ndarray, tar
     """d(next state's tangent coordinates) / d(force at ``dof``) over one control step, central differences, on
     the scratch data ``d``. Shape: (2 nv,). The solver's warm start is not part of ``state`` (``mjSTATE_FULLPHYSICS``
     leaves it out): it is zeroed, as in a fresh ``MjData``, so that the result does not depend on what ``d`` did
-    before (reused as it was, it moved the differences by 1e-13, which the polish's iterations amplified)."""
+    before (reused as it was, it moved the differences by up to 3e-12, which the polish's iterations amplified)."""
     m = humanoid.model
     ends = []
     for sign in (1.0, -1.0):
