@@ -263,6 +263,8 @@ def resample_clip(clip: Clip, humanoid: Humanoid, seam_bridge: float = 0.0) -> C
     a wrap clip's loop seam bridged by :func:`_bridge_seam` (0: off, the bent clip as it is; :data:`SEAM_BRIDGE`
     is the width measured in session 22).
     """
+    if not seam_bridge >= 0.0:
+        raise ValueError(f"{clip.source}: seam_bridge must be >= 0 s (0: off), got {seam_bridge}")
     dt = humanoid.physics.control_dt
     if clip.loop:
         root_pos, root_rot, joint_rot = _bridge_seam(clip, humanoid, *_bend_loop(clip, humanoid), seam_bridge)

@@ -269,6 +269,8 @@ def test_loop_seam_is_continuous_in_velocity(humanoid: Humanoid) -> None:
             assert change[seams].max() >= change[inside].max()
     default = MotionLibrary.from_clips(clips, humanoid)
     np.testing.assert_array_equal(default.frames.qpos, MotionLibrary.from_clips(clips, humanoid, 0.0).frames.qpos)
+    with pytest.raises(ValueError, match="zombie_walk.*seam_bridge must be >= 0 s"):
+        MotionLibrary.from_clips(clips, humanoid, seam_bridge=-0.1)
 
 
 def test_loop_seam_bridge_lifts_a_foot_that_lands_in_the_window(humanoid: Humanoid) -> None:
