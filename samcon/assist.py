@@ -12,6 +12,12 @@ position and velocity at frame f, p* and v* the reference's, F_res the reference
 a clip that tracks within the target with a small cap and not without one needs root forces, measured; one that
 misses with a generous cap too misses for another reason (a torque limit, a joint range, the search).
 
+A **root torque** may join it (``torque_cap`` > 0, session 23; off by default): a couple on the root body from a PD
+on the root's orientation (:class:`AssistConfig`). A force at the root's origin, near the centre of mass, mostly
+moves the centre of mass; a couple turns the body without moving it, which is what the floor must do when a clip
+turns or tips the body about its centre of mass (spins, a centre of pressure the feet cannot reach). With both, a clip
+that still misses is limited by its limbs, not by what the floor gives the whole body.
+
 The force is a function of the clip frame and the state, so an assisted path is still open loop and replays
 bit-exactly with the law (:func:`samcon.search.assisted_replay`); the polish rolls out with the law and its
 linearisation counts the law's dependence on the state. The residual fed forward alone (``scale`` 1, no feedback)
@@ -46,6 +52,7 @@ import numpy as np
 from common.character.humanoid import BodyGeometry, Humanoid
 from common.character.kinematics import ForwardKinematics
 from common.character.state import CharacterState
+from common.maths.rotations import quat_conj, quat_mul, quat_rotate, quat_rotate_inv, quat_to_rotvec
 from common.motion.dataset import resolve_clips
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
@@ -84,6 +91,16 @@ class AssistConfig:
             up, at least 2, as ``samcon.feasibility`` measures it; see :func:`samcon.feasibility.accel_step`).
         contact_tolerance: m; a geom this close to the floor in the reference touches it.
         friction: Sliding friction coefficient (None: the model's).
+        torque_cap: Largest **root torque** in body-weight metres (m |g| x 1 m; 0: none, the default, the law above
+            alone, bit for bit). The torque is a couple on the root body (the free joint's rotational dofs, given in
+            the root's frame as MuJoCo's are), from a PD on the root's orientation in the world frame:
+            ``tau = clip(torque_kp e + torque_kd (w* - w), torque_cap m |g| 1 m)``, e the rotation vector taking
+            the root's orientation to the reference's (``log(q* q^-1)``), w and w* the angular velocities. A couple
+            changes the angular momentum and not the centre of mass's motion: it supplies what the floor's contacts
+            cannot turn the body by (a centre of pressure outside the feet, a yaw the feet's friction cannot give),
+            which a force on the root's origin near the centre of mass barely can.
+        torque_kp: N m per rad of the root's orientation error.
+        torque_kd: N m s per rad of its angular velocity error.
     """
 
     scale: float = 0.0
@@ -93,10 +110,15 @@ class AssistConfig:
     step: int | None = None
     contact_tolerance: float = CONTACT_TOLERANCE
     friction: float | None = None
+    torque_cap: float = 0.0
+    torque_kp: float = 1000.0
+    torque_kd: float = 100.0
 
     def __post_init__(self) -> None:
-        if min(self.scale, self.kp, self.kd, self.cap, self.contact_tolerance) < 0.0:
-            raise ValueError(f"assist: need scale, kp, kd, cap, contact_tolerance >= 0, got {self}")
+        if min(self.scale, self.kp, self.kd, self.cap, self.contact_tolerance, self.torque_cap, self.torque_kp,
+               self.torque_kd) < 0.0:  # fmt: skip
+            raise ValueError(f"assist: need scale, kp, kd, cap, contact_tolerance and the torque's cap, kp and kd "
+                             f">= 0, got {self}")  # fmt: skip
         if self.step is not None and self.step < 1:
             raise ValueError(f"assist.step must be >= 1, got {self.step}")
         if self.friction is not None and not self.friction >= 0.0:
@@ -140,12 +162,15 @@ class RootAssist:
             raise ValueError(f"{humanoid.xml_path}: the root force needs the free joint first")
         if cfg.step is None:
             raise ValueError("assist.step must be resolved per clip (samcon.feasibility.accel_step) before use")
-        self.cfg, self.nv = cfg, m.nv
+        self.cfg, self.nv, self.model = cfg, m.nv, m
         self.mass, self.limit = total_mass(humanoid), cfg.cap * body_weight(humanoid)
+        self.torque_limit = cfg.torque_cap * body_weight(humanoid) * 1.0  # body-weight metres -> N m
         ref = reference_frames(library, clip, max(steps + cfg.step, 2 * cfg.step))
         res = residual_per_frame(humanoid, ref.qpos, library.dt, cfg.step, cfg.contact_tolerance, cfg.friction)
         self.feedforward = cfg.scale * 0.5 * (res[:steps] + res[1 : steps + 1])
         self.root_pos, self.root_vel = ref.qpos[:steps, 0:3].copy(), ref.qvel[:steps, 0:3].copy()
+        self.root_quat = ref.qpos[:steps, 3:7].copy()
+        self.root_angvel = quat_rotate(self.root_quat, ref.qvel[:steps, 3:6])  # world frame
 
     def _unclipped(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.cfg
@@ -153,10 +178,20 @@ class RootAssist:
                                                        + cfg.kd * (self.root_vel[frame] - qvel[:, 0:3]))  # fmt: skip
         return force, np.sqrt(np.sum(force * force, axis=-1, keepdims=True))
 
+    def torque(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """The root torque in the root's frame (the free joint's rotational dofs), clipped. Shape: (n, 3), N m."""
+        cfg, quat = self.cfg, qpos[:, 3:7]
+        error = quat_to_rotvec(quat_mul(self.root_quat[frame], quat_conj(quat)))
+        world = cfg.torque_kp * error + cfg.torque_kd * (self.root_angvel[frame] - quat_rotate(quat, qvel[:, 3:6]))
+        norm = np.sqrt(np.sum(world * world, axis=-1, keepdims=True))
+        return quat_rotate_inv(quat, world * np.minimum(1.0, self.torque_limit / np.maximum(norm, 1e-300)))
+
     def __call__(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
         force, norm = self._unclipped(frame, qpos, qvel)
         out = np.zeros((len(qpos), self.nv))
         out[:, 0:3] = force * np.minimum(1.0, self.limit / np.maximum(norm, 1e-300))
+        if self.torque_limit > 0.0:
+            out[:, 3:6] = self.torque(frame, qpos, qvel)
         return out
 
     def jacobian(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
@@ -173,7 +208,30 @@ class RootAssist:
         out = np.zeros((n, nv, 2 * nv))
         out[:, 0:3, 0:3] = -self.mass * self.cfg.kp * dfdu
         out[:, 0:3, nv : nv + 3] = -self.mass * self.cfg.kd * dfdu
+        if self.torque_limit > 0.0:
+            out[:, 3:6, 3:6], out[:, 3:6, nv + 3 : nv + 6] = self._torque_jacobian(frame, qpos, qvel)
         return out
+
+    def _torque_jacobian(self, frame: int, qpos: np.ndarray, qvel: np.ndarray,
+                         eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """d torque / d (root rotation, root angular velocity) in MuJoCo's tangent coordinates (a rotation vector in
+        the root's frame, ``mj_integratePos``; the angular velocity in the root's frame), by central differences of
+        :meth:`torque` (the law is cheap; the log map and the two frame changes make the exact derivative long).
+        Shapes: (n, 3, 3) each."""
+        n = len(qpos)
+        rot, vel = np.zeros((n, 3, 3)), np.zeros((n, 3, 3))
+        for j in range(3):
+            for sign in (1.0, -1.0):
+                moved = qpos.copy()
+                step = np.zeros(self.nv)
+                step[3 + j] = sign * eps
+                for i in range(n):
+                    mujoco.mj_integratePos(self.model, moved[i], step, 1.0)
+                faster = qvel.copy()
+                faster[:, 3 + j] += sign * eps
+                rot[:, :, j] += sign * self.torque(frame, moved, qvel) / (2.0 * eps)
+                vel[:, :, j] += sign * self.torque(frame, qpos, faster) / (2.0 * eps)
+        return rot, vel
 
 
 def judge(humanoid: Humanoid, states: np.ndarray, ref: CharacterState, ev: EvalConfig) -> dict[str, Any]:
@@ -202,11 +260,21 @@ def judge(humanoid: Humanoid, states: np.ndarray, ref: CharacterState, ev: EvalC
     }
 
 
-def force_summary(forces: np.ndarray, weight: float) -> dict[str, float]:
-    """|root force| over a path's steps (F, nv), in body weights: mean, 95th percentile, max, share above 0.1."""
-    norm = np.linalg.norm(forces[:, 0:3], axis=-1) / weight
+def force_summary(forces: np.ndarray, weight: float, dofs: slice = slice(0, 3)) -> dict[str, float]:
+    """|root force| over a path's steps (F, nv), in body weights: mean, 95th percentile, max, share above 0.1
+    (``dofs`` 3:6: the root torque, in body-weight metres)."""
+    norm = np.linalg.norm(forces[:, dofs], axis=-1) / weight
     return {"mean": float(norm.mean()), "p95": float(np.percentile(norm, 95)), "max": float(norm.max()),
             "share_over_0.1": float(np.mean(norm > 0.1))}  # fmt: skip
+
+
+def _forces(forces: np.ndarray, weight: float, torque: bool) -> dict[str, Any]:
+    """The root force's summary (``force_body_weights``) and, with a torque, the torque's
+    (``torque_body_weight_metres``, m |g| x 1 m)."""
+    out: dict[str, Any] = {"force_body_weights": force_summary(forces, weight)}
+    if torque:
+        out["torque_body_weight_metres"] = force_summary(forces, weight, slice(3, 6))
+    return out
 
 
 def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
@@ -226,17 +294,18 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
     row: dict[str, Any] = {"frames": frames, "step": acfg.step}
     row["searched"] = judge(humanoid, replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces),
                             ref[1:], cfg.train.eval)  # fmt: skip
-    weight = body_weight(humanoid)
-    row["force_body_weights"] = force_summary(traj.forces, weight)
+    weight, torque = body_weight(humanoid), acfg.torque_cap > 0.0
+    row |= _forces(traj.forces, weight, torque)
     for j, cap in enumerate([acfg.cap, *then_caps] if cfg.polish.iterations else []):
         law = RootAssist(humanoid, library, clip, frames, replace(acfg, cap=cap))
         traj = polished(traj, cfg, humanoid, library, clip, log, law=law)
         states, forces = assisted_replay(humanoid, traj.start_state, traj.targets, law, 0, cfg.gym.max_speed)
         judged = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(traj.polish["kept"])}
         if j == 0:  # the assisted result: its force replaces the search's
-            row["polished"], row["force_body_weights"] = judged, force_summary(forces, weight)
+            row["polished"] = judged
+            row |= _forces(forces, weight, torque)
             continue
-        row.setdefault("then", []).append(judged | {"cap": cap, "force_body_weights": force_summary(forces, weight)})
+        row.setdefault("then", []).append(judged | {"cap": cap} | _forces(forces, weight, torque))
         fell = "" if judged["fell_at"] is None else f", fell at step {judged['fell_at']}"
         print(f"{name}: polished again with cap {cap:g}: MPJPE-g {judged['mpjpe_g']:.1f} mm{fell}", file=log,
               flush=True)  # fmt: skip
@@ -265,9 +334,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--cap", type=float, default=defaults.cap, metavar="BODY_WEIGHTS",
                         help="largest root force in body weights; 0: none, the unassisted search through the same "
                              "code (default: %(default)s)")  # fmt: skip
+    parser.add_argument("--torque-cap", type=float, default=defaults.torque_cap, metavar="BODY_WEIGHT_METRES",
+                        help="largest root torque (a couple on the root, from a PD on its orientation) in m |g| x 1 m; "
+                             "0: none (default: %(default)s)")  # fmt: skip
+    parser.add_argument("--torque-kp", type=float, default=defaults.torque_kp, metavar="NM_PER_RAD",
+                        help="root orientation feedback of the torque (default: %(default)s)")
+    parser.add_argument("--torque-kd", type=float, default=defaults.torque_kd, metavar="NMS_PER_RAD",
+                        help="root angular velocity feedback of the torque (default: %(default)s)")
     parser.add_argument("--then-caps", type=float, nargs="+", default=[], metavar="BODY_WEIGHTS",
                         help="after the assisted polish, polish again with each of these caps in turn (e.g. 0.25 0.1 "
-                             "0: a continuation that takes the force away; needs a config with a polish)")  # fmt: skip
+                             "0: a continuation that takes the force away; needs a config with a polish; the root "
+                             "torque, if any, stays as it is)")  # fmt: skip
     parser.add_argument("--step", type=int, default=None, metavar="H",
                         help="differencing step of the residual in control steps (default: per clip, its source "
                              "keyframe spacing rounded up, at least 2, as samcon.feasibility measures it)")  # fmt: skip
@@ -285,7 +362,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     try:
         cfg = load_config(SamconConfig, args.config, cli_overrides(args))
         acfg = AssistConfig(scale=args.scale, kp=args.kp, kd=args.kd, cap=args.cap, step=args.step,
-                            contact_tolerance=args.contact_tolerance, friction=args.friction)  # fmt: skip
+                            contact_tolerance=args.contact_tolerance, friction=args.friction,
+                            torque_cap=args.torque_cap, torque_kp=args.torque_kp, torque_kd=args.torque_kd)  # fmt: skip
         if cfg.search.sigma_choices:
             raise ConfigError(f"{args.config}: search.sigma_choices is not supported here; set search.sigma_init")
         if args.then_caps and (not cfg.polish.iterations or min(args.then_caps) < 0):
@@ -309,6 +387,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         stages += [(f"at cap {t['cap']:g}", t) for t in row.get("then", [])]
         figures = ", ".join(f"{j['mpjpe_g']:.1f} mm {label}" + ("" if j["fell_at"] is None else f" (fell at step "
                             f"{j['fell_at']})") for label, j in stages)  # fmt: skip
+        torque = row.get("torque_body_weight_metres")
+        figures += "" if torque is None else f"; root torque mean {torque['mean']:.3f} body-weight metres"
         print(f"{name}: MPJPE-g {figures}; root force mean {row['force_body_weights']['mean']:.3f} body weights; "
               f"{row['minutes_per_motion_second']:.2f} min per s of motion", flush=True)  # fmt: skip
         if args.out is not None:

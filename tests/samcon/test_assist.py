@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from common.character.humanoid import Humanoid
+from common.maths.rotations import quat_from_axis_angle, quat_mul, quat_rotate, quat_rotate_inv
 from common.motion.dataset import load_motions
 from common.sim.sim import BatchedSim
 from common.train.evaluate import EvalConfig, evaluate
@@ -140,8 +141,8 @@ def test_command_writes_searched_and_polished_figures(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("args", "message"),
     [(["--motions", "nosuchclip"], "nosuchclip"), (["--cap", "-1"], "cap"), (["--set", "search.bogus=1"], "bogus"),
-     (["--set", "polish.search=true"], "polish.search"), (["--set", "polish.iterations=0", "--then-caps", "0"],
-                                                          "--then-caps")],
+     (["--torque-cap", "-0.1"], "torque"), (["--set", "polish.search=true"], "polish.search"),
+     (["--set", "polish.iterations=0", "--then-caps", "0"], "--then-caps")],
 )  # fmt: skip
 def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as exit_info:
@@ -170,6 +171,93 @@ def test_the_linearisation_counts_the_laws_dependence_on_the_state(walk, cap: fl
     nominal = nominal_states(humanoid, start, targets, law)
     dx = np.zeros(2 * m.nv)
     dx[0], dx[m.nv + 1] = 1e-3, 1e-2
+    moved = start.copy()
+    qpos = moved[1 : 1 + m.nq]
+    mujoco.mj_integratePos(m, qpos, dx[: m.nv], 1.0)
+    moved[1 + m.nq : 1 + m.nq + m.nv] += dx[m.nv :]
+    after = nominal_states(humanoid, moved, targets, law)[1]
+    change = np.zeros(2 * m.nv)
+    mujoco.mj_differentiatePos(m, change[: m.nv], 1.0, nominal[1, 1 : 1 + m.nq], after[1 : 1 + m.nq])
+    change[m.nv :] = after[1 + m.nq :] - nominal[1, 1 + m.nq :]
+    a, _ = linearise(humanoid, nominal, targets, 1e-6, law)
+    a_held, _ = linearise(humanoid, nominal, targets, 1e-6, HeldForces(law(0, start[None, 1 : 1 + m.nq],
+                                                                           start[None, 1 + m.nq :])))  # fmt: skip
+    err, err_held = np.linalg.norm(a[0] @ dx - change), np.linalg.norm(a_held[0] @ dx - change)
+    assert err < 0.05 * np.linalg.norm(change) and err_held > 4 * err
+
+
+def test_the_root_torque_by_hand_and_in_its_frames(walk) -> None:
+    """The torque's PD in the world frame, given in the root's frame: a root yawed 0.1 rad past the reference is
+    turned back by kp 0.1 about world z; an angular velocity 0.5 rad/s too fast about the root's own z is braked by
+    kd 0.5 about it; a large error is capped at torque_cap m |g| x 1 m; with no torque_cap nothing changes."""
+    humanoid, library = walk
+    weight = body_weight(humanoid)
+    ref = reference_frames(library, 0, 40)
+    f = 20
+    law = RootAssist(humanoid, library, 0, 30, AssistConfig(cap=0.0, step=2, torque_cap=5.0, torque_kp=1000.0,
+                                                             torque_kd=100.0))  # fmt: skip
+    qpos, qvel = ref.qpos[[f, f]].copy(), ref.qvel[[f, f]].copy()
+    qpos[0, 3:7] = quat_mul(quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.1), qpos[0, 3:7])  # world yaw
+    qvel[0, 3:6] = quat_rotate_inv(qpos[0, 3:7], quat_rotate(ref.qpos[f, 3:7], ref.qvel[f, 3:6]))  # same world w
+    qvel[1, 5] += 0.5  # root frame
+    out = law(f, qpos, qvel)
+    assert not out[:, 0:3].any() and not out[:, 6:].any()
+    np.testing.assert_allclose(quat_rotate(qpos[0, 3:7], out[0, 3:6]), [0.0, 0.0, -100.0], atol=1e-9)
+    np.testing.assert_allclose(out[1, 3:6], [0.0, 0.0, -50.0], atol=1e-9)
+    far = qpos[:1].copy()
+    far[0, 3:7] = quat_mul(quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), 2.0), ref.qpos[f, 3:7])
+    capped = RootAssist(humanoid, library, 0, 30, AssistConfig(cap=0.0, step=2, torque_cap=0.2))(f, far, qvel[:1])
+    assert np.linalg.norm(capped[0, 3:6]) == pytest.approx(0.2 * weight, rel=1e-12)
+    plain = RootAssist(humanoid, library, 0, 30, AssistConfig(cap=0.5, step=2))
+    assert not plain(f, qpos, qvel)[:, 3:].any() and not plain.jacobian(f, qpos, qvel)[:, 3:].any()
+
+
+def test_the_root_torque_turns_the_body_as_a_couple(walk) -> None:
+    """In the air, tilted 90 degrees so that the root's frame is not the world's, the torque changes the whole body's
+    angular momentum about its centre of mass (MuJoCo's subtree_angmom) by the world torque times the time, and its
+    centre of mass's velocity not at all: a couple, in the frame MuJoCo's free joint takes it in."""
+    humanoid, library = walk
+    m = humanoid.model
+    pose = library.frames.qpos[0].copy()
+    pose[2] += 1.0
+    pose[3:7] = quat_mul(quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), np.pi / 2), pose[3:7])
+    tau_world = np.array([3.0, -2.0, 5.0])
+    applied = np.zeros((1, humanoid.nv))
+    applied[0, 3:6] = quat_rotate_inv(pose[3:7], tau_world)
+    sim = BatchedSim(humanoid, 1, threads=0, applied=True)
+    d = mujoco.MjData(m)
+
+    def momentum(qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d.qpos[:], d.qvel[:] = qpos, qvel
+        mujoco.mj_forward(m, d)
+        mujoco.mj_subtreeVel(m, d)
+        return d.subtree_angmom[1].copy(), d.subtree_linvel[1].copy()
+
+    try:
+        sim.set_state(np.arange(1), pose[None], np.zeros((1, humanoid.nv)))
+        before = momentum(sim.qpos[0], sim.qvel[0])
+        sim.step(pose[None, humanoid.hinge_qpos], applied)
+        after = momentum(sim.qpos[0], sim.qvel[0])
+    finally:
+        sim.close()
+    dt = humanoid.physics.control_dt
+    # Held in the root's frame over the step, the couple turns with the body a little (<1e-3 rad): 1% tolerance.
+    np.testing.assert_allclose(after[0] - before[0], tau_world * dt, rtol=0.01, atol=1e-4)
+    np.testing.assert_allclose(after[1] - before[1], np.asarray(m.opt.gravity) * dt, atol=1e-5)  # a 5 N force: 2e-3
+
+
+def test_the_linearisation_counts_the_torques_dependence_on_the_state(walk) -> None:
+    """As for the force: a step from a state turned 1 mrad about the root's x and 1 cm/s faster about its z, simulated
+    with the torque law, against A dx, with the law's (central-difference) Jacobian and without it."""
+    humanoid, library = walk
+    m = humanoid.model
+    law = RootAssist(humanoid, library, 0, 10, AssistConfig(cap=0.0, step=2, torque_cap=5.0))
+    ref = reference_frames(library, 0, 10)
+    start = start_state(library, humanoid, 0)
+    targets = ref.qpos[1:2, humanoid.hinge_qpos]
+    nominal = nominal_states(humanoid, start, targets, law)
+    dx = np.zeros(2 * m.nv)
+    dx[3], dx[m.nv + 5] = 1e-3, 1e-2
     moved = start.copy()
     qpos = moved[1 : 1 + m.nq]
     mujoco.mj_integratePos(m, qpos, dx[: m.nv], 1.0)
