@@ -64,6 +64,8 @@ class PhysicsConfig:
         ls_iterations: Line-search iterations of the Newton solver.
         armature: Rotor inertia (kg m^2) added to every hinge; None keeps the MJCF's value. Too little lets the
             stiff PD servos chatter at the physics rate (see ``common/character/assets/humanoid3d.xml``).
+        torque_scale: Multiplies every servo's torque limit (the actuators' ``forcerange``; the MJCF's, DeepMimic's,
+            at 1). A study knob, not a tuning one: how strong the character must be to track a clip (session 23).
     """
 
     control_hz: float = 60.0
@@ -71,6 +73,7 @@ class PhysicsConfig:
     solver_iterations: int = 100
     ls_iterations: int = 50
     armature: float | None = None
+    torque_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.control_hz <= 0:
@@ -79,6 +82,8 @@ class PhysicsConfig:
             raise ValueError(f"physics.substeps must be >= 1, got {self.substeps}")
         if self.armature is not None and not self.armature >= 0:
             raise ValueError(f"physics.armature must be >= 0 (kg m^2), got {self.armature}")
+        if not self.torque_scale > 0:
+            raise ValueError(f"physics.torque_scale must be > 0, got {self.torque_scale}")
 
     @property
     def control_dt(self) -> float:
@@ -130,6 +135,8 @@ class Humanoid:
         m = self.model
         if self.physics.armature is not None:
             m.dof_armature[m.jnt_dofadr[m.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]] = self.physics.armature
+        if self.physics.torque_scale != 1.0:
+            m.actuator_forcerange[:] *= self.physics.torque_scale
         # Body 0 is MuJoCo's world body; the character's bodies follow in depth-first order.
         self.body_names: tuple[str, ...] = tuple(
             mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, i) for i in range(1, m.nbody)

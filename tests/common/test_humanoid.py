@@ -69,6 +69,25 @@ def test_armature_on_every_hinge_only() -> None:
         PhysicsConfig(armature=-0.001)
 
 
+def test_torque_scale_multiplies_every_servos_limit() -> None:
+    """A servo asked for far more than its limit delivers its limit: 90 N m at the ankle as in DeepMimic, 180 with
+    torque_scale 2 (MuJoCo's own clamp on the position actuator's force); the gains are unchanged."""
+    delivered = []
+    for scale in (1.0, 2.0):
+        h = Humanoid(PhysicsConfig(torque_scale=scale))
+        m, d = h.model, mujoco.MjData(h.model)
+        d.qpos[2] = 1.0
+        d.qpos[3] = 1.0
+        a = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, "right_ankle_y")
+        d.ctrl[a] = 1.0  # 1 rad from the pose: kp 1 rad far above the limit
+        mujoco.mj_forward(m, d)
+        delivered.append(float(d.actuator_force[a]))
+        np.testing.assert_array_equal(m.actuator_gainprm, Humanoid().model.actuator_gainprm)
+    assert delivered == [pytest.approx(90.0), pytest.approx(180.0)]
+    with pytest.raises(ValueError, match="torque_scale"):
+        PhysicsConfig(torque_scale=0.0)
+
+
 def test_offsets_masses_and_gains_match_deepmimic(humanoid: Humanoid, character: dict) -> None:
     m = humanoid.model
     ctrl = {c["Name"]: c for c in json.loads((DATA / "humanoid3d_ctrl.txt").read_text())["PDControllers"]}
