@@ -268,12 +268,18 @@ def force_summary(forces: np.ndarray, weight: float, dofs: slice = slice(0, 3)) 
             "share_over_0.1": float(np.mean(norm > 0.1))}  # fmt: skip
 
 
-def _forces(forces: np.ndarray, weight: float, torque: bool) -> dict[str, Any]:
+def _forces(forces: np.ndarray, weight: float, torque: bool, start: np.ndarray, states: np.ndarray) -> dict[str, Any]:
     """The root force's summary (``force_body_weights``) and, with a torque, the torque's
-    (``torque_body_weight_metres``, m |g| x 1 m)."""
+    (``torque_body_weight_metres``, m |g| x 1 m, with ``vertical_mean``: the mean |world z component|, the part
+    that turns the body about the vertical). ``start`` (nstate,) and ``states`` (F, nstate): the path's states
+    before its first step and after every step (the torque of step f is in the root's frame of the state before it).
+    """
     out: dict[str, Any] = {"force_body_weights": force_summary(forces, weight)}
     if torque:
-        out["torque_body_weight_metres"] = force_summary(forces, weight, slice(3, 6))
+        quat = np.concatenate([start[None], states[:-1]])[:, 4:8]  # state = (time, qpos, ...): qpos[3:7]
+        vertical = np.abs(quat_rotate(quat, forces[:, 3:6])[:, 2]) / weight
+        out["torque_body_weight_metres"] = force_summary(forces, weight, slice(3, 6)) | {
+            "vertical_mean": float(vertical.mean())}
     return out
 
 
@@ -292,10 +298,10 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
                   progress=segment_progress(name, log), assist=partial(RootAssist, humanoid, cfg=acfg))  # fmt: skip
     ref = reference_frames(library, clip, frames)
     row: dict[str, Any] = {"frames": frames, "step": acfg.step}
-    row["searched"] = judge(humanoid, replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces),
-                            ref[1:], cfg.train.eval)  # fmt: skip
+    states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
+    row["searched"] = judge(humanoid, states, ref[1:], cfg.train.eval)
     weight, torque = body_weight(humanoid), acfg.torque_cap > 0.0
-    row |= _forces(traj.forces, weight, torque)
+    row |= _forces(traj.forces, weight, torque, traj.start_state, states)
     for j, cap in enumerate([acfg.cap, *then_caps] if cfg.polish.iterations else []):
         law = RootAssist(humanoid, library, clip, frames, replace(acfg, cap=cap))
         traj = polished(traj, cfg, humanoid, library, clip, log, law=law)
@@ -303,9 +309,10 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         judged = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(traj.polish["kept"])}
         if j == 0:  # the assisted result: its force replaces the search's
             row["polished"] = judged
-            row |= _forces(forces, weight, torque)
+            row |= _forces(forces, weight, torque, traj.start_state, states)
             continue
-        row.setdefault("then", []).append(judged | {"cap": cap} | _forces(forces, weight, torque))
+        row.setdefault("then", []).append(judged | {"cap": cap} | _forces(forces, weight, torque, traj.start_state,
+                                                                          states))  # fmt: skip
         fell = "" if judged["fell_at"] is None else f", fell at step {judged['fell_at']}"
         print(f"{name}: polished again with cap {cap:g}: MPJPE-g {judged['mpjpe_g']:.1f} mm{fell}", file=log,
               flush=True)  # fmt: skip

@@ -138,6 +138,17 @@ def test_command_writes_searched_and_polished_figures(tmp_path: Path) -> None:
     assert last["cap"] == 0.0 and last["force_body_weights"]["max"] == 0.0 and "kept" in last
 
 
+def test_command_reports_the_root_torque(tmp_path: Path) -> None:
+    out = tmp_path / "assist.json"
+    main(["--config", "configs/samcon/debug.yaml", "--motions", "spin", "--set", "polish.search=false",
+          "--cap", "0", "--torque-cap", "0.3", "--out", str(out)])  # fmt: skip
+    data = json.loads(out.read_text())
+    row = data["clips"]["spin"]
+    assert data["assist"]["torque_cap"] == 0.3 and row["force_body_weights"]["max"] == 0.0
+    torque = row["torque_body_weight_metres"]
+    assert 0.0 < torque["vertical_mean"] <= torque["mean"] <= torque["max"] <= 0.3 + 1e-9
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [(["--motions", "nosuchclip"], "nosuchclip"), (["--cap", "-1"], "cap"), (["--set", "search.bogus=1"], "bogus"),
