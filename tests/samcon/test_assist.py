@@ -164,6 +164,30 @@ def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_pat
     assert not (tmp_path / "a.json").exists()
 
 
+def _prediction_errors(humanoid: Humanoid, law: RootAssist, start: np.ndarray, targets: np.ndarray, pos_dof: int,
+                       vel_dof: int) -> tuple[float, float]:  # fmt: skip
+    """One step from ``start`` moved 1e-3 along tangent coordinate ``pos_dof`` and 1e-2 along velocity ``vel_dof``,
+    simulated with ``law``, against A dx from the linearisation with the law's Jacobian and with its forces held
+    (no Jacobian): the two prediction errors relative to the simulated change."""
+    m = humanoid.model
+    nominal = nominal_states(humanoid, start, targets, law)
+    dx = np.zeros(2 * m.nv)
+    dx[pos_dof], dx[m.nv + vel_dof] = 1e-3, 1e-2
+    moved = start.copy()
+    qpos = moved[1 : 1 + m.nq]
+    mujoco.mj_integratePos(m, qpos, dx[: m.nv], 1.0)
+    moved[1 + m.nq : 1 + m.nq + m.nv] += dx[m.nv :]
+    after = nominal_states(humanoid, moved, targets, law)[1]
+    change = np.zeros(2 * m.nv)
+    mujoco.mj_differentiatePos(m, change[: m.nv], 1.0, nominal[1, 1 : 1 + m.nq], after[1 : 1 + m.nq])
+    change[m.nv :] = after[1 + m.nq :] - nominal[1, 1 + m.nq :]
+    a, _ = linearise(humanoid, nominal, targets, 1e-6, law)
+    a_held, _ = linearise(humanoid, nominal, targets, 1e-6, HeldForces(law(0, start[None, 1 : 1 + m.nq],
+                                                                           start[None, 1 + m.nq :])))  # fmt: skip
+    size = np.linalg.norm(change)
+    return float(np.linalg.norm(a[0] @ dx - change) / size), float(np.linalg.norm(a_held[0] @ dx - change) / size)
+
+
 @pytest.mark.parametrize("cap", [5.0, 0.05])
 def test_the_linearisation_counts_the_laws_dependence_on_the_state(walk, cap: float) -> None:
     """A step from a state moved 1 mm ahead and 1 cm/s sideways, simulated with the law, against A dx: with the
@@ -179,22 +203,8 @@ def test_the_linearisation_counts_the_laws_dependence_on_the_state(walk, cap: fl
     assert (
         np.linalg.norm(law(0, start[None, 1 : 1 + m.nq], start[None, 1 + m.nq :])) < 0.3 * body_weight(humanoid)
     ) == (cap < 1.0)
-    nominal = nominal_states(humanoid, start, targets, law)
-    dx = np.zeros(2 * m.nv)
-    dx[0], dx[m.nv + 1] = 1e-3, 1e-2
-    moved = start.copy()
-    qpos = moved[1 : 1 + m.nq]
-    mujoco.mj_integratePos(m, qpos, dx[: m.nv], 1.0)
-    moved[1 + m.nq : 1 + m.nq + m.nv] += dx[m.nv :]
-    after = nominal_states(humanoid, moved, targets, law)[1]
-    change = np.zeros(2 * m.nv)
-    mujoco.mj_differentiatePos(m, change[: m.nv], 1.0, nominal[1, 1 : 1 + m.nq], after[1 : 1 + m.nq])
-    change[m.nv :] = after[1 + m.nq :] - nominal[1, 1 + m.nq :]
-    a, _ = linearise(humanoid, nominal, targets, 1e-6, law)
-    a_held, _ = linearise(humanoid, nominal, targets, 1e-6, HeldForces(law(0, start[None, 1 : 1 + m.nq],
-                                                                           start[None, 1 + m.nq :])))  # fmt: skip
-    err, err_held = np.linalg.norm(a[0] @ dx - change), np.linalg.norm(a_held[0] @ dx - change)
-    assert err < 0.05 * np.linalg.norm(change) and err_held > 4 * err
+    err, err_held = _prediction_errors(humanoid, law, start, targets, pos_dof=0, vel_dof=1)
+    assert err < 0.05 and err_held > 4 * err
 
 
 def test_the_root_torque_by_hand_and_in_its_frames(walk) -> None:
@@ -261,24 +271,9 @@ def test_the_linearisation_counts_the_torques_dependence_on_the_state(walk) -> N
     """As for the force: a step from a state turned 1 mrad about the root's x and 1 cm/s faster about its z, simulated
     with the torque law, against A dx, with the law's (central-difference) Jacobian and without it."""
     humanoid, library = walk
-    m = humanoid.model
     law = RootAssist(humanoid, library, 0, 10, AssistConfig(cap=0.0, step=2, torque_cap=5.0))
     ref = reference_frames(library, 0, 10)
     start = start_state(library, humanoid, 0)
     targets = ref.qpos[1:2, humanoid.hinge_qpos]
-    nominal = nominal_states(humanoid, start, targets, law)
-    dx = np.zeros(2 * m.nv)
-    dx[3], dx[m.nv + 5] = 1e-3, 1e-2
-    moved = start.copy()
-    qpos = moved[1 : 1 + m.nq]
-    mujoco.mj_integratePos(m, qpos, dx[: m.nv], 1.0)
-    moved[1 + m.nq : 1 + m.nq + m.nv] += dx[m.nv :]
-    after = nominal_states(humanoid, moved, targets, law)[1]
-    change = np.zeros(2 * m.nv)
-    mujoco.mj_differentiatePos(m, change[: m.nv], 1.0, nominal[1, 1 : 1 + m.nq], after[1 : 1 + m.nq])
-    change[m.nv :] = after[1 + m.nq :] - nominal[1, 1 + m.nq :]
-    a, _ = linearise(humanoid, nominal, targets, 1e-6, law)
-    a_held, _ = linearise(humanoid, nominal, targets, 1e-6, HeldForces(law(0, start[None, 1 : 1 + m.nq],
-                                                                           start[None, 1 + m.nq :])))  # fmt: skip
-    err, err_held = np.linalg.norm(a[0] @ dx - change), np.linalg.norm(a_held[0] @ dx - change)
-    assert err < 0.05 * np.linalg.norm(change) and err_held > 4 * err
+    err, err_held = _prediction_errors(humanoid, law, start, targets, pos_dof=3, vel_dof=5)
+    assert err < 0.05 and err_held > 4 * err
