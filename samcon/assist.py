@@ -18,6 +18,11 @@ moves the centre of mass; a couple turns the body without moving it, which is wh
 turns or tips the body about its centre of mass (spins, a centre of pressure the feet cannot reach). With both, a clip
 that still misses is limited by its limbs, not by what the floor gives the whole body.
 
+Taking the help away again (session 24): ``--then-search`` searches anew around the assisted path (its targets the
+candidates' centre, many states kept per segment) with a smaller cap, down to none, each stage polished. Polishing
+the assisted path alone at a smaller cap (``--then-caps``) fell on run and dance_a (session 20): one path, played from
+where the lost help first lets it drift, has nothing to correct the drift with.
+
 The force is a function of the clip frame and the state, so an assisted path is still open loop and replays
 bit-exactly with the law (:func:`samcon.search.assisted_replay`); the polish rolls out with the law and its
 linearisation counts the law's dependence on the state. The residual fed forward alone (``scale`` 1, no feedback)
@@ -284,18 +289,33 @@ def _forces(forces: np.ndarray, weight: float, torque: bool, start: np.ndarray, 
 
 
 def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
-                   log: Any, then_caps: Sequence[float] = ()) -> dict[str, Any]:  # fmt: skip
+                   log: Any, then_caps: Sequence[float] = (), then_search: Sequence[tuple[float, float]] = (),
+                   then_sigma: float = 0.1) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
     """One clip: the search of ``cfg`` (and its polish when on) with the root force of ``acfg``, judged open loop
     from the clip's start with the force replayed. The draws are ``track-samcon``'s (its seed and the clip's name).
 
     ``then_caps`` (with the polish on): polish the path again with each of these caps in turn, each from the last
     one's targets (a continuation that takes the helping force away; with a last cap of 0 the result is an
-    unassisted open-loop path), each judged with its own law (``row["then"]``)."""
+    unassisted open-loop path), each judged with its own law (``row["then"]``).
+
+    ``then_search`` (force cap, torque cap) pairs: after that, search again with each pair's law in turn, around the
+    last path (its targets are the candidates' centre, :func:`samcon.search.samcon`'s ``centre``; ``sigma_init``
+    ``then_sigma``), and polish the result with the same law when the config has a polish (``row["then_search"]``).
+    Unlike ``then_caps`` the search keeps many states per segment, so it can correct the drift that taking the help
+    away causes where it begins. With a last pair (0, 0) the result is an unassisted open-loop path.
+
+    Returns:
+        The row of figures, and the paths: ``start_state`` and the targets of every stage (``searched``,
+        ``polished``, ``then_search_<i>``; (F, nu)).
+    """
     name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
 
-    traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, clip_generator(cfg.train.seed, name),
-                  threads=cfg.train.threads, max_speed=cfg.gym.max_speed, rsi_lift=cfg.train.eval.rsi_lift,
-                  progress=segment_progress(name, log), assist=partial(RootAssist, humanoid, cfg=acfg))  # fmt: skip
+    rng = clip_generator(cfg.train.seed, name)
+    common = dict(threads=cfg.train.threads, max_speed=cfg.gym.max_speed, rsi_lift=cfg.train.eval.rsi_lift,
+                  progress=segment_progress(name, log))  # fmt: skip
+    traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng,
+                  assist=partial(RootAssist, humanoid, cfg=acfg), **common)  # fmt: skip
+    paths = {"start_state": traj.start_state, "searched": traj.targets}
     ref = reference_frames(library, clip, frames)
     row: dict[str, Any] = {"frames": frames, "step": acfg.step}
     states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
@@ -310,15 +330,55 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         if j == 0:  # the assisted result: its force replaces the search's
             row["polished"] = judged
             row |= _forces(forces, weight, torque, traj.start_state, states)
+            paths["polished"] = traj.targets
             continue
         row.setdefault("then", []).append(judged | {"cap": cap} | _forces(forces, weight, torque, traj.start_state,
                                                                           states))  # fmt: skip
         fell = "" if judged["fell_at"] is None else f", fell at step {judged['fell_at']}"
         print(f"{name}: polished again with cap {cap:g}: MPJPE-g {judged['mpjpe_g']:.1f} mm{fell}", file=log,
               flush=True)  # fmt: skip
-    row |= {"samples": traj.samples, "minutes": traj.seconds / 60.0,
-            "minutes_per_motion_second": traj.seconds / 60.0 / (frames * library.dt)}  # fmt: skip
-    return row
+    samples, seconds = traj.samples, traj.seconds
+    for i, (force_cap, torque_cap) in enumerate(then_search):
+        stage = replace(acfg, cap=force_cap, torque_cap=torque_cap)
+        print(f"{name}: searching around the last path with force cap {force_cap:g}, torque cap {torque_cap:g}",
+              file=log, flush=True)  # fmt: skip
+        traj = samcon(humanoid, library, clip, frames, replace(cfg.search, sigma_init=then_sigma), cfg.cost, rng,
+                      assist=partial(RootAssist, humanoid, cfg=stage), centre=traj.targets, **common)  # fmt: skip
+        samples, seconds = samples + traj.samples, seconds + traj.seconds
+        states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
+        result: dict[str, Any] = {"force_cap": force_cap, "torque_cap": torque_cap,
+                                  "searched": judge(humanoid, states, ref[1:], cfg.train.eval)}  # fmt: skip
+        if cfg.polish.iterations:
+            law = RootAssist(humanoid, library, clip, frames, stage)
+            before = traj.seconds
+            traj = polished(traj, cfg, humanoid, library, clip, log, law=law)
+            seconds += traj.seconds - before
+            states, forces = assisted_replay(humanoid, traj.start_state, traj.targets, law, 0, cfg.gym.max_speed)
+            result["polished"] = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(traj.polish["kept"])}
+        else:
+            forces = traj.forces
+        result |= _forces(forces, weight, torque_cap > 0.0, traj.start_state, states)
+        row.setdefault("then_search", []).append(result)
+        paths[f"then_search_{i}"] = traj.targets
+        last = result.get("polished", result["searched"])
+        fell = "" if last["fell_at"] is None else f", fell at step {last['fell_at']}"
+        print(f"{name}: searched around the last path with force cap {force_cap:g}, torque cap {torque_cap:g}: "
+              f"MPJPE-g {result['searched']['mpjpe_g']:.1f} mm searched, {last['mpjpe_g']:.1f} mm last{fell}",
+              file=log, flush=True)  # fmt: skip
+    row |= {"samples": samples, "minutes": seconds / 60.0,
+            "minutes_per_motion_second": seconds / 60.0 / (frames * library.dt)}  # fmt: skip
+    return row, paths
+
+
+def _cap_pair(spec: str) -> tuple[float, float]:
+    """``FORCE_CAP:TORQUE_CAP`` (``--then-search``) -> the two caps, both >= 0."""
+    try:
+        force, torque = (float(v) for v in spec.split(":"))
+    except ValueError:
+        raise ConfigError(f"--then-search: {spec!r} is not FORCE_CAP:TORQUE_CAP (two numbers, e.g. 0:0.05)") from None
+    if not (force >= 0.0 and torque >= 0.0):
+        raise ConfigError(f"--then-search: {spec!r}: the caps must be >= 0")
+    return force, torque
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -352,6 +412,17 @@ def build_parser() -> argparse.ArgumentParser:
                         help="after the assisted polish, polish again with each of these caps in turn (e.g. 0.25 0.1 "
                              "0: a continuation that takes the force away; needs a config with a polish; the root "
                              "torque, if any, stays as it is)")  # fmt: skip
+    parser.add_argument("--then-search", nargs="+", default=[], metavar="FORCE_CAP:TORQUE_CAP",
+                        help="after that, search again around the last path (its targets the candidates' centre) with "
+                             "each of these force and torque caps in turn, each polished when the config has a "
+                             "polish (e.g. 0:0.05 0:0: a continuation that takes a root torque away; with 0:0 last, "
+                             "the result is an unassisted open-loop path)")  # fmt: skip
+    parser.add_argument("--then-sigma", type=float, default=0.1, metavar="RAD",
+                        help="sigma_init of the searches of --then-search (default: %(default)s)")
+    parser.add_argument("--paths", default=None, metavar="FILE.npz",
+                        help="also write every clip's start state and each stage's PD targets there (atomically, "
+                             "after every clip; arrays <clip>/start_state, <clip>/searched, <clip>/polished, "
+                             "<clip>/then_search_<i>)")  # fmt: skip
     parser.add_argument("--step", type=int, default=None, metavar="H",
                         help="differencing step of the residual in control steps (default: per clip, its source "
                              "keyframe spacing rounded up, at least 2, as samcon.feasibility measures it)")  # fmt: skip
@@ -376,6 +447,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         if args.then_caps and (not cfg.polish.iterations or min(args.then_caps) < 0):
             raise ConfigError(f"--then-caps needs caps >= 0 and a config with a polish ({args.config}: "
                               f"polish.iterations {cfg.polish.iterations})")  # fmt: skip
+        then_search = [_cap_pair(spec) for spec in args.then_search]
+        if not args.then_sigma > 0.0:
+            raise ConfigError(f"--then-sigma must be > 0, got {args.then_sigma}")
         if cfg.polish.iterations and cfg.polish.search:
             raise ConfigError(f"{args.config}: polish.search is not supported here (its searches have no root force)")
         humanoid = Humanoid(cfg.gym.physics)
@@ -384,14 +458,20 @@ def main(argv: Sequence[str] | None = None) -> None:
         library = MotionLibrary.from_clips(clips, humanoid)
     except (ConfigError, MotionFormatError, FileNotFoundError, ValueError) as e:
         sys.exit(f"error: {e}")
-    out: dict[str, Any] = {"config": args.config, "overrides": args.overrides, "assist": vars(acfg), "clips": {}}
+    out: dict[str, Any] = {"config": args.config, "overrides": args.overrides, "assist": vars(acfg), "clips": {},
+                           "then_search": then_search, "then_sigma": args.then_sigma}  # fmt: skip
+    paths: dict[str, np.ndarray] = {}
     t0 = time.perf_counter()
     for c, name in enumerate(library.names):
         step = acfg.step or accel_step(1.0 / clips[c].source_fps, library.dt)
-        row = track_assisted(cfg, replace(acfg, step=step), humanoid, library, c, sys.stdout, args.then_caps)
+        row, clip_paths = track_assisted(cfg, replace(acfg, step=step), humanoid, library, c, sys.stdout,
+                                         args.then_caps, then_search, args.then_sigma)  # fmt: skip
         out["clips"][name] = row
+        paths |= {f"{name}/{key}": value for key, value in clip_paths.items()}
         stages = [("searched", row["searched"])] + ([("polished", row["polished"])] if "polished" in row else [])
         stages += [(f"at cap {t['cap']:g}", t) for t in row.get("then", [])]
+        stages += [(f"around it at caps {t['force_cap']:g}:{t['torque_cap']:g}", t.get("polished", t["searched"]))
+                   for t in row.get("then_search", [])]  # fmt: skip
         figures = ", ".join(f"{j['mpjpe_g']:.1f} mm {label}" + ("" if j["fell_at"] is None else f" (fell at step "
                             f"{j['fell_at']})") for label, j in stages)  # fmt: skip
         torque = row.get("torque_body_weight_metres")
@@ -402,6 +482,9 @@ def main(argv: Sequence[str] | None = None) -> None:
             out["seconds"] = time.perf_counter() - t0
             with atomic_output(args.out) as tmp:
                 tmp.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
+        if args.paths is not None:
+            with atomic_output(args.paths) as tmp, open(tmp, "wb") as f:
+                np.savez(f, **paths)
     if args.out is not None:
         print(f"written: {args.out}")
 

@@ -5,7 +5,8 @@ saved full MuJoCo states of the ``keep`` samples kept at the end of the previous
 the first), ``samples`` candidates are simulated, one character each, in one batched rollout: candidate i starts
 from kept state ``i mod keep`` and holds the PD targets ``reference next-frame hinge angles + offset_i`` for the
 whole segment, ``offset_i = guide(s_i) + mean + sigma * z_i`` with z standard normal and s the kept state's
-feedback features (``guide`` is 0 unless the search is re-run around linear feedback policies). Each candidate is
+feedback features (``guide`` is 0 unless the search is re-run around linear feedback policies; with a ``centre``
+path, e.g. one made with root help, its targets replace the reference's angles). Each candidate is
 scored by the tracking cost averaged over the segment's frames. After each of ``iterations`` rounds, mean and sigma
 (one per actuator, CMA-style diagonal) move to the log-weighted ``elite`` of the round; the best ``keep`` of all
 rounds are kept. When even the cheapest kept sample has fallen (the evaluator's head rule), the search goes back
@@ -87,7 +88,8 @@ class Trajectory:
         clip: Clip name.
         start_state: The full MuJoCo state it starts from (the gym's reset at t = 0). Shape: (nstate,).
         targets: Absolute PD targets of every control step from ``bounds[0]``. Shape: (F - bounds[0], nu).
-        offsets: The chosen offset of every segment (on the reference's next-frame hinge angles). Shape: (S, nu).
+        offsets: The chosen offset of every segment (on the reference's next-frame hinge angles, or on the search's
+            ``centre``). Shape: (S, nu).
         bounds: First frame of every segment and the last frame F (the first is 0 unless the search started later).
             Shape: (S + 1,).
         segment_cost: Tracking cost of the chosen sample in every segment. Shape: (S,).
@@ -202,7 +204,8 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
            fresh_states: int = 1, fresh_noise: tuple[float, float] = (0.0, 0.0),
            rsi_lift: bool = False, progress: Progress | None = None, start_frame: int = 0,
            end_frame: int | None = None, cost_limit: float = np.inf,
-           start: np.ndarray | None = None, assist: Assist | None = None) -> Trajectory:  # fmt: skip
+           start: np.ndarray | None = None, assist: Assist | None = None,
+           centre: np.ndarray | None = None) -> Trajectory:  # fmt: skip
     """Tracks the first ``frames`` control steps of clip ``clip`` from its start (see the module docstring).
 
     Args:
@@ -231,6 +234,9 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
         cost_limit: Raise :class:`SearchAbandoned` as soon as the cheapest kept sample's cost summed along its
             parents exceeds this: costs are never negative, so a trajectory through the kept samples can only cost
             more (a later backtrack could in principle re-search the last segments cheaper; it is not waited for).
+        centre: PD targets of steps 0, 1, ... (G, nu) that the candidates' offsets are drawn around instead of the
+            reference's next-frame hinge angles (steps past G: the reference's): a search around a path made
+            another way, e.g. with root help (``samcon.assist --then-search``). The offsets are then on it.
     """
     grid = segment_bounds(library, clip, frames, search.segment_frames, search.align_cycle)
     end_frame = frames if end_frame is None else end_frame
@@ -243,6 +249,10 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     beyond = search.lookahead_frames if library.loop[clip] else min(search.lookahead_frames,
                                                                      max(0, library.num_frames[clip] - 1 - frames))
     ref = reference_frames(library, clip, frames + int(beyond))
+    centres = ref.qpos[1:, hinge].copy()  # the targets an offset of 0 gives at step f -> f + 1
+    if centre is not None:
+        g = min(len(centre), len(centres))
+        centres[:g] = np.asarray(centre, dtype=float)[:g]
     law = None if assist is None else assist(library, clip, len(ref.qpos) - 1)
     bounds = grid[(grid >= start_frame) & (grid <= end_frame)]
     nseg = len(bounds) - 1
@@ -291,7 +301,7 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
                 width = sigma * (search.final_scale if r == rounds_of[k] - 1 and r > 0 else 1.0)
                 noise = mean + width * rng.standard_normal((n, nu))
                 offset = base + noise
-                c, terms, end = _simulate(sim, fk, humanoid, cost, starts, offset, ref, f0, f1, hinge,
+                c, terms, end = _simulate(sim, fk, humanoid, cost, starts, offset, ref, f0, f1, centres,
                                           search.lookahead_frames, search.lookahead_weight, law)  # fmt: skip
                 rounds.append((parent, offset, c, end, terms, feat, fresh))
                 elite = np.flatnonzero(~fresh)[np.argsort(c[~fresh], kind="stable")[: search.elite]]
@@ -339,7 +349,7 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     finally:
         sim.close()
         fk.close()
-    traj = _trace_back(library.names[clip], start, history, ref, bounds, hinge, samples, time.perf_counter() - t0,
+    traj = _trace_back(library.names[clip], start, history, centres, bounds, samples, time.perf_counter() - t0,
                        features, actions)  # fmt: skip
     traj.backtracks, traj.sigma = backtracks, search.sigma_init
     if law is not None:
@@ -348,11 +358,12 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
 
 
 def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: CostConfig, starts: np.ndarray,
-              offset: np.ndarray, ref: CharacterState, f0: int, f1: int, hinge: np.ndarray, lookahead: int = 0,
+              offset: np.ndarray, ref: CharacterState, f0: int, f1: int, centres: np.ndarray, lookahead: int = 0,
               lookahead_weight: float = 1.0,
               law: AssistLaw | None = None) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:  # fmt: skip
-    """Simulates every candidate through frames [f0, f1) from ``starts`` (n, nstate) with targets ref + ``offset``
-    (and, with ``law``, the generalised force it gives each over every step).
+    """Simulates every candidate through frames [f0, f1) from ``starts`` (n, nstate) with targets ``centres[f]`` +
+    ``offset`` at step f (the reference's next-frame hinge angles unless the search has a centre path; and, with
+    ``law``, the generalised force it gives each over every step).
 
     With ``lookahead`` > 0 each candidate plays on for that many frames past the segment (the same offset held,
     at most to the reference's last frame), and ``lookahead_weight`` times that stretch's mean cost joins its
@@ -371,7 +382,7 @@ def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: 
     sums = {key: np.zeros(n) for key in (*COST_TERMS, "fallen")}
     blown = np.zeros(n, dtype=bool)
     for f in range(f0, f1):
-        blown |= sim.step(ref.qpos[f + 1, hinge][None] + offset, _force(law, f, sim))
+        blown |= sim.step(centres[f][None] + offset, _force(law, f, sim))
         # A blown-up character is put back on its start so that no NaN reaches the kinematics; it is never kept.
         sim.state[blown] = starts[blown]
         now = fk(sim.qpos.copy(), sim.qvel.copy())
@@ -386,7 +397,7 @@ def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: 
     if len(ahead):
         more = np.zeros(n)
         for f in ahead:
-            blown_ahead = sim.step(ref.qpos[f + 1, hinge][None] + offset, _force(law, f, sim))
+            blown_ahead = sim.step(centres[f][None] + offset, _force(law, f, sim))
             sim.state[blown_ahead | blown] = end[blown_ahead | blown]
             more += tracking_cost(humanoid, cost, fk(sim.qpos.copy(), sim.qvel.copy()), ref[np.full(n, f + 1)])[0]
         total += lookahead_weight * more / len(ahead)
@@ -398,8 +409,8 @@ def _force(law: AssistLaw | None, frame: int, sim: BatchedSim) -> np.ndarray | N
     return None if law is None else law(frame, sim.qpos, sim.qvel)
 
 
-def _trace_back(name: str, start: np.ndarray, history: list, ref: CharacterState, bounds: np.ndarray,
-                hinge: np.ndarray, samples: int, seconds: float, features: list[np.ndarray],
+def _trace_back(name: str, start: np.ndarray, history: list, centres: np.ndarray, bounds: np.ndarray,
+                samples: int, seconds: float, features: list[np.ndarray],
                 actions: list[np.ndarray]) -> Trajectory:  # fmt: skip
     """The lowest-cost kept sample of the last segment, traced back through its parents to the start."""
     nseg = len(history)
@@ -410,7 +421,7 @@ def _trace_back(name: str, start: np.ndarray, history: list, ref: CharacterState
         j = int(history[k][0][j])
     offsets = np.stack([history[k][1][chosen[k]] for k in range(nseg)])
     per_frame = np.repeat(offsets, np.diff(bounds), axis=0)
-    targets = ref.qpos[int(bounds[0]) + 1 : int(bounds[-1]) + 1][:, hinge] + per_frame
+    targets = centres[int(bounds[0]) : int(bounds[-1])] + per_frame
     return Trajectory(
         clip=name, start_state=start, targets=targets, offsets=offsets, bounds=bounds,
         segment_cost=np.array([history[k][2][chosen[k]] for k in range(nseg)]),

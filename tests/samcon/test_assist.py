@@ -149,11 +149,37 @@ def test_command_reports_the_root_torque(tmp_path: Path) -> None:
     assert 0.0 < torque["vertical_mean"] <= torque["mean"] <= torque["max"] <= 0.3 + 1e-9
 
 
+def test_command_searches_around_the_assisted_path_down_to_none(tmp_path: Path) -> None:
+    """--then-search: a search around the torque-assisted path with a smaller torque, then with none; the last
+    stage is an unassisted path that replays, without any force, to the figures reported; --paths holds it."""
+    out, paths = tmp_path / "assist.json", tmp_path / "paths.npz"
+    main(["--config", "configs/samcon/debug.yaml", "--motions", "walk", "--set", "polish.search=false",
+          "--cap", "0", "--torque-cap", "0.2", "--then-search", "0:0.05", "0:0", "--then-sigma", "0.05",
+          "--out", str(out), "--paths", str(paths)])  # fmt: skip
+    data = json.loads(out.read_text())
+    assert data["then_search"] == [[0.0, 0.05], [0.0, 0.0]] and data["then_sigma"] == 0.05
+    first, last = data["clips"]["walk"]["then_search"]
+    assert 0.0 < first["torque_body_weight_metres"]["max"] <= 0.05 + 1e-9
+    assert last["force_cap"] == last["torque_cap"] == 0.0 and last["force_body_weights"]["max"] == 0.0
+    assert "torque_body_weight_metres" not in last and "kept" in last["polished"]
+    saved = np.load(paths)
+    assert set(saved.files) == {f"walk/{k}" for k in ("start_state", "searched", "polished", "then_search_0",
+                                                       "then_search_1")}  # fmt: skip
+    humanoid = Humanoid()
+    library = load_motions(["walk"], humanoid)
+    ev = EvalConfig(starts_per_clip=1, max_frames=6, threads=1)
+    states = replay(humanoid, saved["walk/start_state"], saved["walk/then_search_1"])
+    got = judge(humanoid, states, reference_frames(library, 0, 6)[1:], ev)
+    assert got["mpjpe_g"] == last["polished"]["mpjpe_g"] and got["fell_at"] == last["polished"]["fell_at"]
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [(["--motions", "nosuchclip"], "nosuchclip"), (["--cap", "-1"], "cap"), (["--set", "search.bogus=1"], "bogus"),
      (["--torque-cap", "-0.1"], "torque"), (["--set", "polish.search=true"], "polish.search"),
-     (["--set", "polish.iterations=0", "--then-caps", "0"], "--then-caps")],
+     (["--set", "polish.iterations=0", "--then-caps", "0"], "--then-caps"),
+     (["--then-search", "0.1"], "FORCE_CAP:TORQUE_CAP"), (["--then-search", "0:-1"], ">= 0"),
+     (["--then-search", "0:0", "--then-sigma", "0"], "--then-sigma")],
 )  # fmt: skip
 def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as exit_info:

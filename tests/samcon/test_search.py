@@ -93,6 +93,31 @@ def test_two_segments_trace_back_and_replay_bit_exactly(walk) -> None:
                                atol=1e-12)  # fmt: skip
 
 
+def test_a_search_around_a_centre_path_offsets_that_path(walk) -> None:
+    """The reference's own next-frame angles as the centre give the plain search bit for bit; another centre path
+    is what the offsets are on, and the result replays bit-exactly through the kept end states."""
+    humanoid, library = walk
+    search = SearchConfig(segment_frames=3, samples=8, iterations=2, keep=3, elite=4, lookahead_frames=3)
+    ref = reference_frames(library, 0, 7 + 3)
+    plain = samcon(humanoid, library, 0, 7, search, CostConfig(), np.random.default_rng(4))
+    same = samcon(humanoid, library, 0, 7, search, CostConfig(), np.random.default_rng(4),
+                  centre=ref.qpos[1:8, humanoid.hinge_qpos])  # fmt: skip
+    np.testing.assert_array_equal(same.targets, plain.targets)
+    np.testing.assert_array_equal(same.segment_cost, plain.segment_cost)
+    # A centre bent by 0.05 rad per frame index on every hinge (7 frames): the chosen targets are it plus the
+    # segment offsets, and a centre shorter than the search leaves the later frames on the reference.
+    bend = ref.qpos[1:8, humanoid.hinge_qpos] + 0.05 * np.arange(7)[:, None]
+    bent = samcon(humanoid, library, 0, 7, search, CostConfig(), np.random.default_rng(4), centre=bend)
+    np.testing.assert_allclose(bent.targets - bend, np.repeat(bent.offsets, [3, 3, 1], axis=0), atol=1e-12)
+    assert not np.array_equal(bent.targets, plain.targets)
+    states = replay(humanoid, bent.start_state, bent.targets)
+    np.testing.assert_array_equal(states[bent.bounds[1:] - 1], bent.end_states)
+    short = samcon(humanoid, library, 0, 7, search, CostConfig(), np.random.default_rng(4), centre=bend[:3])
+    np.testing.assert_allclose(short.targets[:3] - bend[:3], short.offsets[[0, 0, 0]], atol=1e-12)
+    np.testing.assert_allclose(short.targets[3:] - ref.qpos[4:8, humanoid.hinge_qpos],
+                               np.repeat(short.offsets[1:], [3, 1], axis=0), atol=1e-12)  # fmt: skip
+
+
 def test_path_anchored_feedback_replays_the_open_loop_trajectory(walk) -> None:
     humanoid, library = walk
     search = SearchConfig(segment_frames=3, samples=8, iterations=2, keep=3, elite=4)
