@@ -76,7 +76,7 @@ from samcon.feasibility import (
     residual_vector,
     total_mass,
 )
-from samcon.search import assisted_replay, horizon, reference_frames, replay, samcon
+from samcon.search import assisted_replay, horizon, reference_frames, replay, samcon, start_state
 from samcon.track import cli_overrides, clip_generator, polished, segment_progress
 
 
@@ -290,7 +290,8 @@ def _forces(forces: np.ndarray, weight: float, torque: bool, start: np.ndarray, 
 
 def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
                    log: Any, then_caps: Sequence[float] = (), then_search: Sequence[tuple[float, float]] = (),
-                   then_sigma: float = 0.1) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
+                   then_sigma: float = 0.1,
+                   start_path: np.ndarray | None = None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
     """One clip: the search of ``cfg`` (and its polish when on) with the root force of ``acfg``, judged open loop
     from the clip's start with the force replayed. The draws are ``track-samcon``'s (its seed and the clip's name).
 
@@ -304,23 +305,37 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
     Unlike ``then_caps`` the search keeps many states per segment, so it can correct the drift that taking the help
     away causes where it begins. With a last pair (0, 0) the result is an unassisted open-loop path.
 
+    ``start_path`` (F, nu): instead of the search (and polish, and ``then_caps``), this path (e.g. a stage saved by
+    ``--paths``), judged with ``acfg``'s law (``row["given"]``), is where ``then_search`` starts.
+
     Returns:
         The row of figures, and the paths: ``start_state`` and the targets of every stage (``searched``,
-        ``polished``, ``then_search_<i>``; (F, nu)).
+        ``polished``, ``then_search_<i>``, or ``given``; (F, nu)).
     """
     name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
 
     rng = clip_generator(cfg.train.seed, name)
     common = dict(threads=cfg.train.threads, max_speed=cfg.gym.max_speed, rsi_lift=cfg.train.eval.rsi_lift,
                   progress=segment_progress(name, log))  # fmt: skip
+    ref = reference_frames(library, clip, frames)
+    row: dict[str, Any] = {"frames": frames, "step": acfg.step}
+    weight, torque = body_weight(humanoid), acfg.torque_cap > 0.0
+    if start_path is not None:
+        if start_path.shape != (frames, humanoid.nu):
+            raise ValueError(f"{name}: the given path is {start_path.shape}, the clip needs ({frames}, {humanoid.nu})")
+        first = start_state(library, humanoid, clip, cfg.train.eval.rsi_lift)
+        law = RootAssist(humanoid, library, clip, frames, acfg)
+        states, forces = assisted_replay(humanoid, first, start_path, law, 0, cfg.gym.max_speed)
+        row["given"] = judge(humanoid, states, ref[1:], cfg.train.eval)
+        row |= _forces(forces, weight, torque, first, states)
+        paths = {"start_state": first, "given": np.asarray(start_path, dtype=float)}
+        return _search_around(cfg, acfg, humanoid, library, clip, log, row, paths, paths["given"], 0, 0.0,
+                              then_search, then_sigma, rng, common)  # fmt: skip
     traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng,
                   assist=partial(RootAssist, humanoid, cfg=acfg), **common)  # fmt: skip
     paths = {"start_state": traj.start_state, "searched": traj.targets}
-    ref = reference_frames(library, clip, frames)
-    row: dict[str, Any] = {"frames": frames, "step": acfg.step}
     states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
     row["searched"] = judge(humanoid, states, ref[1:], cfg.train.eval)
-    weight, torque = body_weight(humanoid), acfg.torque_cap > 0.0
     row |= _forces(traj.forces, weight, torque, traj.start_state, states)
     for j, cap in enumerate([acfg.cap, *then_caps] if cfg.polish.iterations else []):
         law = RootAssist(humanoid, library, clip, frames, replace(acfg, cap=cap))
@@ -337,13 +352,23 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         fell = "" if judged["fell_at"] is None else f", fell at step {judged['fell_at']}"
         print(f"{name}: polished again with cap {cap:g}: MPJPE-g {judged['mpjpe_g']:.1f} mm{fell}", file=log,
               flush=True)  # fmt: skip
-    samples, seconds = traj.samples, traj.seconds
+    return _search_around(cfg, acfg, humanoid, library, clip, log, row, paths, traj.targets, traj.samples,
+                          traj.seconds, then_search, then_sigma, rng, common)  # fmt: skip
+
+
+def _search_around(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
+                   log: Any, row: dict[str, Any], paths: dict[str, np.ndarray], centre: np.ndarray, samples: int,
+                   seconds: float, then_search: Sequence[tuple[float, float]], then_sigma: float,
+                   rng: np.random.Generator, common: dict[str, Any]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """:func:`track_assisted`'s ``then_search`` stages from the path ``centre``, adding to its row and paths."""
+    name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
+    ref, weight = reference_frames(library, clip, frames), body_weight(humanoid)
     for i, (force_cap, torque_cap) in enumerate(then_search):
         stage = replace(acfg, cap=force_cap, torque_cap=torque_cap)
         print(f"{name}: searching around the last path with force cap {force_cap:g}, torque cap {torque_cap:g}",
               file=log, flush=True)  # fmt: skip
         traj = samcon(humanoid, library, clip, frames, replace(cfg.search, sigma_init=then_sigma), cfg.cost, rng,
-                      assist=partial(RootAssist, humanoid, cfg=stage), centre=traj.targets, **common)  # fmt: skip
+                      assist=partial(RootAssist, humanoid, cfg=stage), centre=centre, **common)  # fmt: skip
         samples, seconds = samples + traj.samples, seconds + traj.seconds
         states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
         result: dict[str, Any] = {"force_cap": force_cap, "torque_cap": torque_cap,
@@ -359,7 +384,7 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
             forces = traj.forces
         result |= _forces(forces, weight, torque_cap > 0.0, traj.start_state, states)
         row.setdefault("then_search", []).append(result)
-        paths[f"then_search_{i}"] = traj.targets
+        paths[f"then_search_{i}"] = centre = traj.targets
         last = result.get("polished", result["searched"])
         fell = "" if last["fell_at"] is None else f", fell at step {last['fell_at']}"
         print(f"{name}: searched around the last path with force cap {force_cap:g}, torque cap {torque_cap:g}: "
@@ -379,6 +404,23 @@ def _cap_pair(spec: str) -> tuple[float, float]:
     if not (force >= 0.0 and torque >= 0.0):
         raise ConfigError(f"--then-search: {spec!r}: the caps must be >= 0")
     return force, torque
+
+
+def _given_paths(spec: str, motions: Sequence[str]) -> dict[str, np.ndarray]:
+    """``FILE.npz:STAGE`` (``--start-path``) -> {clip: that clip's targets of the stage} for every clip named."""
+    file, _, stage = spec.rpartition(":")
+    if not file or not stage:
+        raise ConfigError(f"--start-path: {spec!r} is not FILE.npz:STAGE")
+    try:
+        with np.load(file) as saved:
+            held = list(saved.files)
+            got = {name: saved[f"{name}/{stage}"] for name in motions if f"{name}/{stage}" in held}
+    except (OSError, ValueError) as e:
+        raise ConfigError(f"{file}: cannot be read as a --paths file ({e})") from None
+    missing = [f"{name}/{stage}" for name in motions if name not in got]
+    if missing:
+        raise ConfigError(f"{file}: no {', '.join(missing)} (it holds {', '.join(held)})")
+    return got
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -419,6 +461,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "the result is an unassisted open-loop path)")  # fmt: skip
     parser.add_argument("--then-sigma", type=float, default=0.1, metavar="RAD",
                         help="sigma_init of the searches of --then-search (default: %(default)s)")
+    parser.add_argument("--start-path", default=None, metavar="FILE.npz:STAGE",
+                        help="skip the search: start --then-search from each clip's path STAGE of a --paths file "
+                             "(e.g. runs/a.npz:then_search_0), judged first with --cap and --torque-cap")  # fmt: skip
     parser.add_argument("--paths", default=None, metavar="FILE.npz",
                         help="also write every clip's start state and each stage's PD targets there (atomically, "
                              "after every clip; arrays <clip>/start_state, <clip>/searched, <clip>/polished, "
@@ -448,6 +493,8 @@ def main(argv: Sequence[str] | None = None) -> None:
             raise ConfigError(f"--then-caps needs caps >= 0 and a config with a polish ({args.config}: "
                               f"polish.iterations {cfg.polish.iterations})")  # fmt: skip
         then_search = [_cap_pair(spec) for spec in args.then_search]
+        if args.start_path and (args.then_caps or not then_search):
+            raise ConfigError("--start-path needs --then-search and takes no --then-caps")
         if not args.then_sigma > 0.0:
             raise ConfigError(f"--then-sigma must be > 0, got {args.then_sigma}")
         if cfg.polish.iterations and cfg.polish.search:
@@ -456,19 +503,26 @@ def main(argv: Sequence[str] | None = None) -> None:
         # resolve_clips + from_clips (load_motions without its dataset branch): h needs the source keyframe times.
         clips = resolve_clips(list(cfg.train.motions))
         library = MotionLibrary.from_clips(clips, humanoid)
+        given = _given_paths(args.start_path, library.names) if args.start_path else None
+        for c, name in enumerate(library.names if given is not None else []):
+            need = (horizon(library, c, cfg.train.max_frames), humanoid.nu)
+            if given[name].shape != need:
+                raise ConfigError(f"{args.start_path}: {name}'s path is {given[name].shape}, the clip needs {need}")
     except (ConfigError, MotionFormatError, FileNotFoundError, ValueError) as e:
         sys.exit(f"error: {e}")
     out: dict[str, Any] = {"config": args.config, "overrides": args.overrides, "assist": vars(acfg), "clips": {},
-                           "then_search": then_search, "then_sigma": args.then_sigma}  # fmt: skip
+                           "then_search": then_search, "then_sigma": args.then_sigma,
+                           "start_path": args.start_path}  # fmt: skip
     paths: dict[str, np.ndarray] = {}
     t0 = time.perf_counter()
     for c, name in enumerate(library.names):
         step = acfg.step or accel_step(1.0 / clips[c].source_fps, library.dt)
         row, clip_paths = track_assisted(cfg, replace(acfg, step=step), humanoid, library, c, sys.stdout,
-                                         args.then_caps, then_search, args.then_sigma)  # fmt: skip
+                                         args.then_caps, then_search, args.then_sigma,
+                                         None if given is None else given[name])  # fmt: skip
         out["clips"][name] = row
         paths |= {f"{name}/{key}": value for key, value in clip_paths.items()}
-        stages = [("searched", row["searched"])] + ([("polished", row["polished"])] if "polished" in row else [])
+        stages = [(key, row[key]) for key in ("given", "searched", "polished") if key in row]
         stages += [(f"at cap {t['cap']:g}", t) for t in row.get("then", [])]
         stages += [(f"around it at caps {t['force_cap']:g}:{t['torque_cap']:g}", t.get("polished", t["searched"]))
                    for t in row.get("then_search", [])]  # fmt: skip

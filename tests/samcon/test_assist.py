@@ -171,6 +171,17 @@ def test_command_searches_around_the_assisted_path_down_to_none(tmp_path: Path) 
     states = replay(humanoid, saved["walk/start_state"], saved["walk/then_search_1"])
     got = judge(humanoid, states, reference_frames(library, 0, 6)[1:], ev)
     assert got["mpjpe_g"] == last["polished"]["mpjpe_g"] and got["fell_at"] == last["polished"]["fell_at"]
+    # Started again from the first stage's saved path, judged with its own law, it is where that stage ended.
+    again = tmp_path / "again.json"
+    main(["--config", "configs/samcon/debug.yaml", "--motions", "walk", "--set", "polish.search=false",
+          "--cap", "0", "--torque-cap", "0.05", "--start-path", f"{paths}:then_search_0", "--then-search", "0:0",
+          "--out", str(again)])  # fmt: skip
+    row = json.loads(again.read_text())["clips"]["walk"]
+    assert row["given"] == {k: first["polished"][k] for k in ("mpjpe_g", "mpjpe_l", "fell_at")}
+    assert "searched" not in row and len(row["then_search"]) == 1
+    with pytest.raises(SystemExit, match="walk/nope"):
+        main(["--config", "configs/samcon/debug.yaml", "--motions", "walk", "--set", "polish.search=false",
+              "--start-path", f"{paths}:nope", "--then-search", "0:0"])  # fmt: skip
 
 
 @pytest.mark.parametrize(
@@ -179,7 +190,8 @@ def test_command_searches_around_the_assisted_path_down_to_none(tmp_path: Path) 
      (["--torque-cap", "-0.1"], "torque"), (["--set", "polish.search=true"], "polish.search"),
      (["--set", "polish.iterations=0", "--then-caps", "0"], "--then-caps"),
      (["--then-search", "0.1"], "FORCE_CAP:TORQUE_CAP"), (["--then-search", "0:-1"], ">= 0"),
-     (["--then-search", "0:0", "--then-sigma", "0"], "--then-sigma")],
+     (["--then-search", "0:0", "--then-sigma", "0"], "--then-sigma"),
+     (["--start-path", "a.npz:polished"], "--start-path needs --then-search")],
 )  # fmt: skip
 def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as exit_info:
