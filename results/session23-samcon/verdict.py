@@ -1,16 +1,18 @@
 """Per bundled clip, SAMCON's best open-loop tracking so far: without root forces, and with a root force of at most
-0.5 body weights (``python -m samcon.assist``), from the stored result files of sessions 16-23.
+0.5 body weights (``python -m samcon.assist``), from the stored result files of sessions 16-24.
 
     python results/session23-samcon/verdict.py [--feasibility results/session23-samcon/feasibility.json]
 
 Counted: ``track-samcon`` ``results.json`` copies (the open-loop row) and ``samcon.assist`` JSON files (the searched,
-polished and ``--then-caps`` rows, each at its own cap, of the default law: a PD pull, no residual fed forward), on
+polished, ``--then-caps`` and ``--then-search`` rows, each at its own caps, of the default law: a PD pull, no
+residual fed forward; a ``--then-search`` stage at caps 0:0 is an unassisted path and counts as one), on
 the default references (session 16's reference fixes on; session 22's bridged references and the 64-frame probes
 left out), over the evaluator's whole open-loop horizon (512 frames, or to a one-shot clip's end) and without a fall.
 Force caps above 0.5, a root torque and stronger servos (``gym.physics.torque_scale``; all session 23) go to the last
 column, one cell per setting. Each cell is the lowest MPJPE-g of those, with its MPJPE-l, the one-core minutes per
-second of motion of that run and its file. One draw each: the best of several draws and configs is a selection, so
-the figures are what SAMCON has reached, not what one run reaches.
+second of motion of that run (all its stages, and the run whose path a ``--start-path`` run began from) and its
+file. One draw each: the best of several draws and configs is a selection, so the figures are what SAMCON has
+reached, not what one run reaches.
 """
 
 from __future__ import annotations
@@ -56,13 +58,21 @@ def records(root: Path, full: dict[str, int]) -> dict[str, list[dict]]:
                 law = data["assist"]
                 if law["scale"] > 0.0 or law["kp"] == 0.0:  # the residual fed forward: another law, left out
                     continue
-                base["torque"] = law.get("torque_cap", 0.0)
-                judged = [(row[k], data["assist"]["cap"], k) for k in ("searched", "polished") if k in row]
-                judged += [(t, t["cap"], "then") for t in row.get("then", [])]
-                for j, cap, stage in judged:
+                torque = law.get("torque_cap", 0.0)
+                judged = [(row[k], law["cap"], torque, k) for k in ("searched", "polished") if k in row]
+                judged += [(t, t["cap"], torque, "then") for t in row.get("then", [])]
+                # --then-search stages (session 24), each at its own caps; a run started from another's saved path
+                # (--start-path) counts that run's minutes too.
+                judged += [(t[k], t["force_cap"], t["torque_cap"], "then_search") for t in row.get("then_search", [])
+                           for k in ("searched", "polished") if k in t]  # fmt: skip
+                if data.get("start_path") and base["min_per_s"] is not None:
+                    source = json.loads(path.with_name(Path(data["start_path"].rpartition(":")[0]).stem + ".json")
+                                        .read_text())["clips"][name]  # fmt: skip
+                    base["min_per_s"] += source["minutes_per_motion_second"]
+                for j, cap, torque, stage in judged:
                     if j["fell_at"] is None:
                         out[name].append(base | {"mpjpe_g": j["mpjpe_g"], "mpjpe_l": j["mpjpe_l"], "cap": cap,
-                                                 "stage": stage})  # fmt: skip
+                                                 "torque": torque, "stage": stage})  # fmt: skip
             elif "open_loop" in row and row["open_loop"].get("survival", 0.0) >= 1.0:
                 j = row["open_loop"]
                 out[name].append(base | {"mpjpe_g": j["mpjpe_g"], "mpjpe_l": j["mpjpe_l"], "cap": 0.0,
