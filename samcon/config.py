@@ -449,6 +449,14 @@ class PolishConfig:
         if self.search and any(self.follows(p) for p in range(self.passes)):
             raise ValueError("polish.search plays new frames from searches, polish.follow by the searched path's LQR: "
                              "use one or the other")
+        if self.window < 0 or self.stride < 0 or (self.window and self.stride > self.window):
+            raise ValueError(f"polish: need window >= 0 and 0 <= stride <= window, got {self.window}, {self.stride}")
+        if min(self.body, self.velocity, self.root_velocity, self.control) < 0 or self.body == 0:
+            raise ValueError("polish: need body > 0 and velocity, control >= 0")
+        if not (self.eps > 0 and self.alphas and min(self.alphas) > 0):
+            raise ValueError("polish: need eps > 0 and at least one step size, all > 0")
+        if not (0 < self.mu_min <= self.mu_init <= self.mu_max and self.mu_factor > 1 and self.tolerance >= 0):
+            raise ValueError("polish: need 0 < mu_min <= mu_init <= mu_max, mu_factor > 1, tolerance >= 0")
 
     def follows(self, p: int) -> bool:
         """Whether pass ``p`` (from 0) plays its windows' look-aheads by the LQR."""
@@ -459,14 +467,6 @@ class PolishConfig:
         follows = self.follows(p)
         ahead = self.follow_lookahead if follows and self.follow_lookahead is not None else self.lookahead
         return replace(self, follow=follows, lookahead=ahead)
-        if self.window < 0 or self.stride < 0 or (self.window and self.stride > self.window):
-            raise ValueError(f"polish: need window >= 0 and 0 <= stride <= window, got {self.window}, {self.stride}")
-        if min(self.body, self.velocity, self.root_velocity, self.control) < 0 or self.body == 0:
-            raise ValueError("polish: need body > 0 and velocity, control >= 0")
-        if not (self.eps > 0 and self.alphas and min(self.alphas) > 0):
-            raise ValueError("polish: need eps > 0 and at least one step size, all > 0")
-        if not (0 < self.mu_min <= self.mu_init <= self.mu_max and self.mu_factor > 1 and self.tolerance >= 0):
-            raise ValueError("polish: need 0 < mu_min <= mu_init <= mu_max, mu_factor > 1, tolerance >= 0")
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """How physically feasible each reference clip is for this character, measured from the kinematic reference alone.
 
-Two measures per reference frame of the motion library (no simulation, no tracking):
+Three measures per reference frame of the motion library (no simulation, no tracking):
 
 1. **Residual external force** (contact-model-free). The whole-body centre of mass c (the bodies' masses at their
    inertial frames, MuJoCo's ``xipos``) gives the net external force the reference implies, F_k = m (a_k - g), g =
@@ -42,6 +42,24 @@ Two measures per reference frame of the motion library (no simulation, no tracki
    force of (c) is m (a_com - g), measure 1's F. Besides, the reference's hinge angles are checked against the joint
    ranges (``jnt_range``): the simulated character cannot go past them at all.
 
+3. **Moment** (contact-model-free, needs the contacts' places). About the whole-body CoM gravity has no moment, so
+   the rate of change of the character's angular momentum about its CoM, dL/dt (L: MuJoCo's ``subtree_angmom`` of
+   the root body from the library's qpos and qvel; dL/dt on the same triangle of half-width h dt as measure 1's
+   force, by the trapezoid rule over each half), is the moment sum_i (p_i - c) x f_i of the floor's contact forces
+   f_i at their points p_i. Measure 1 asks only whether F = sum_i f_i lies in the cone; a spin, a lean or a turn on
+   one foot can need a moment no set of forces at the touching points gives (without torsional friction, which
+   MuJoCo's default ``condim`` 3 contacts do not have, a foot turns the body about the vertical only through the
+   lever of its tangential forces about its corners). The contact points are the support points of every touching
+   geom (box corners, capsule ends, sphere centres, lowered by the radius, :class:`BodyGeometry`) within
+   ``tolerance`` of the floor in any frame of [k - h, k + h], placed on the floor; each gets the friction pyramid of
+   8 edges that holds the cone (edges mu / cos(pi / 8) out), so the contacts can do at least what the true cones
+   can. The forces f_i are found by non-negative least squares (:func:`nnls`) on the pyramid edges, the force rows
+   weighted :data:`FORCE_PRIORITY` times the moment rows in body-weight units (m |g| and m |g| x 1 m): the force
+   is matched first (as closely as measure 1 allows), then the moment as closely as forces with that sum allow.
+   The **moment residual** is the part of dL/dt left, in body-weight metres (the unit of ``samcon.assist``'s
+   ``--torque-cap``): the smallest root couple the reference needs on top of what its contacts give. Moving the
+   contact points and the moment arm within the window is where it is an estimate, not a bound.
+
 One-shot clips skip their first and last h frames (no central difference there). Looping clips are measured over
 one whole cycle, frames h..h+n-1, the frames past the cycle end coming from the library's own continuation (frame n
 is frame 0 moved by the cycle transform), so the loop seam is differentiated like any other frame.
@@ -72,6 +90,10 @@ from common.train.config import atomic_output
 
 CONTACT_TOLERANCE = 0.03  # m: a geom whose lowest point is this close to the floor (or below it) touches it
 RESIDUAL_THRESHOLD = 0.1  # body weights: the residual force counted as "large"
+MOMENT_THRESHOLD = 0.05  # body-weight metres: the moment residual counted as "large" (half samcon.assist's 0.1 couple)
+FORCE_FITS = 0.01  # body weights: a frame whose residual force is below this has its force in the cone (measure 3)
+FORCE_PRIORITY = 1000.0  # weight of the force rows against the moment rows in the contact-force fit (measure 3)
+PYRAMID_EDGES = 8
 MIN_STEP = 2  # grid steps: differencing the library's central-difference velocities once more spans 2 steps
 
 
@@ -89,6 +111,9 @@ class FrameFeasibility:
         root_residual: |qfrc_inverse| at the free joint's translation dofs, in body weights. Shape: (T,).
         hinge_ratio_unconstrained: ``hinge_ratio`` with contacts and joint limits off. Shape: (T, nu).
         range_excess: How far each hinge angle lies outside its joint range (0 inside). Shape: (T, nu), rad.
+        moment_rate: dL/dt, angular momentum about the CoM, world (measure 3). Shape: (T, 3), N m.
+        moment_residual: The part of dL/dt no contact forces at the touching points give, world, in body-weight
+            metres m |g| x 1 m. Shape: (T, 3).
     """
 
     force: np.ndarray
@@ -100,6 +125,8 @@ class FrameFeasibility:
     root_residual: np.ndarray
     hinge_ratio_unconstrained: np.ndarray
     range_excess: np.ndarray
+    moment_rate: np.ndarray
+    moment_residual: np.ndarray
 
 
 def total_mass(humanoid: Humanoid) -> float:
@@ -291,9 +318,183 @@ def range_excess(humanoid: Humanoid, qpos: np.ndarray) -> np.ndarray:
     return np.where(m.jnt_limited[joints].astype(bool), np.maximum(0.0, np.maximum(lower - angle, angle - upper)), 0.0)
 
 
+def angular_momentum(humanoid: Humanoid, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+    """L: the character's angular momentum about its centre of mass per frame, world, N m s.
+
+    MuJoCo's ``subtree_angmom`` of the character's root body (``mj_subtreeVel``), the sum over the bodies of
+    m_b (x_b - c) x (v_b - v_c) + I_b w_b.
+
+    Args:
+        qpos: Shape: (T, nq).
+        qvel: Shape: (T, nv).
+    """
+    m = humanoid.model
+    roots = np.flatnonzero(m.body_parentid[1:] == 0) + 1
+    if len(roots) != 1:
+        raise ValueError(f"{humanoid.xml_path}: the character must be one kinematic tree (world children: {roots})")
+    data = mujoco.MjData(m)
+    out = np.empty((len(qpos), 3))
+    for k in range(len(qpos)):
+        data.qpos[:], data.qvel[:] = qpos[k], qvel[k]
+        mujoco.mj_forward(m, data)
+        mujoco.mj_subtreeVel(m, data)
+        out[k] = data.subtree_angmom[roots[0]]
+    return out
+
+
+def triangle_rate(values: np.ndarray, dt: float, step: int) -> np.ndarray:
+    """The mean time derivative of a sampled quantity under a triangle of half-width h dt, at frames h..T+h-1.
+
+    (mean over [t_k, t_k+h] - mean over [t_k-h, t_k]) / (h dt), each mean by the trapezoid rule: the weighting of
+    measure 1's force (for positions, whose means over the halves are the chords' slopes, it is the h-step second
+    difference). Exact for a quantity linear in time.
+
+    Args:
+        values: Shape: (T + 2h, ...).
+        dt: Grid step in s.
+        step: h in grid steps.
+
+    Returns:
+        Shape: (T, ...).
+    """
+    area = np.concatenate([np.zeros_like(values[:1]), np.cumsum(0.5 * (values[1:] + values[:-1]), axis=0)])
+    ahead, behind = area[2 * step :] - area[step:-step], area[step:-step] - area[: -2 * step]
+    return (ahead - behind) / (step * step * dt)
+
+
+def support_points(humanoid: Humanoid, qpos: np.ndarray) -> np.ndarray:
+    """The lowest surface point over each collision support point (box corner, capsule end, sphere centre, lowered
+    by its radius) of every body per frame, world, m.
+
+    Args:
+        qpos: Shape: (T, nq).
+
+    Returns:
+        Shape: (T, B * 8, 3); boxes give 8 points, capsules 2 and spheres 1, repeated to 8 (:class:`BodyGeometry`).
+    """
+    from common.maths.rotations import quat_rotate
+
+    m, geometry = humanoid.model, BodyGeometry(humanoid)
+    data = mujoco.MjData(m)
+    out = np.empty((len(qpos), humanoid.num_bodies, 8, 3))
+    for k, q in enumerate(qpos):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(m, data)
+        rot = np.repeat(data.xquat[1:, None], 8, axis=1)
+        out[k] = data.xpos[1:, None] + quat_rotate(rot, geometry.points)
+    out[..., 2] -= geometry.radius[:, None]
+    return out.reshape(len(qpos), -1, 3)
+
+
+def pyramid(friction: float, edges: int = PYRAMID_EDGES) -> np.ndarray:
+    """Edge directions of a friction pyramid that holds the cone |f_h| <= mu f_z (normal +z).
+
+    The polygon of the tangential parts circumscribes the circle of radius mu: its vertices lie mu / cos(pi / n) out,
+    at angles 2 pi j / n.
+
+    Returns:
+        Shape: (n, 3), each with unit normal part.
+    """
+    angle = 2.0 * np.pi * np.arange(edges) / edges
+    reach = friction / np.cos(np.pi / edges)
+    return np.stack([reach * np.cos(angle), reach * np.sin(angle), np.ones(edges)], axis=1)
+
+
+def nnls(a: np.ndarray, b: np.ndarray, max_iterations: int | None = None) -> np.ndarray:
+    """min_x |a x - b| subject to x >= 0, by Lawson and Hanson's active-set method (Solving Least Squares Problems,
+    1974, ch. 23).
+
+    Args:
+        a: Shape: (m, n).
+        b: Shape: (m,).
+        max_iterations: Outer iterations before giving up (default 3 n); the last iterate is returned.
+
+    Returns:
+        x of shape (n,), x >= 0; at the solution the gradient a^T (b - a x) is <= 0 where x = 0 and 0 where x > 0.
+    """
+    rows, n = a.shape
+    x, passive = np.zeros(n), np.zeros(n, dtype=bool)
+    tol = 1e-12 * max(1.0, float(np.abs(a).sum(axis=0).max() * np.abs(b).sum()))
+    for _ in range(3 * n if max_iterations is None else max_iterations):
+        gradient = a.T @ (b - a @ x)
+        gradient[passive] = -np.inf
+        j = int(np.argmax(gradient))
+        if gradient[j] <= tol:
+            break
+        passive[j] = True
+        while True:
+            z = np.zeros(n)
+            z[passive] = np.linalg.lstsq(a[:, passive], b, rcond=None)[0]
+            if np.all(z[passive] > 0.0):
+                x = z
+                break
+            blocking = passive & (z <= 0.0)
+            alpha = np.min(x[blocking] / (x[blocking] - z[blocking]))
+            x = x + alpha * (z - x)
+            passive &= x > tol
+            x[~passive] = 0.0
+            if not passive.any():
+                break
+    return x
+
+
+def contact_wrench_residual(force: np.ndarray, moment: np.ndarray, com: np.ndarray, points: np.ndarray,
+                            friction: float, weight: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """What floor contact forces at ``points`` cannot give of a net force and a moment about the CoM.
+
+    The forces are non-negative combinations of each point's :func:`pyramid` edges, fitted by :func:`nnls` to the
+    wrench in body-weight units, the force rows weighted :data:`FORCE_PRIORITY` (see measure 3).
+
+    Args:
+        force: Net external force, world. Shape: (3,), N.
+        moment: Moment about the CoM (dL/dt), world. Shape: (3,), N m.
+        com: Centre of mass. Shape: (3,), m.
+        points: Contact points on the floor. Shape: (P, 3), m; P may be 0.
+        friction: mu.
+        weight: m |g| in N.
+
+    Returns:
+        The force left (3,) in body weights and the moment left (3,) in body-weight metres.
+    """
+    want = np.concatenate([FORCE_PRIORITY * force, moment]) / weight
+    if len(points) == 0:
+        return force / weight, moment / weight
+    edges = pyramid(friction)
+    arms = points - com
+    columns = np.concatenate([np.broadcast_to(edges, (len(points), *edges.shape)),
+                              np.cross(arms[:, None, :], edges[None, :, :])], axis=2).reshape(-1, 6)  # fmt: skip
+    columns[:, :3] *= FORCE_PRIORITY
+    left = want - columns.T @ nnls(columns.T, want)
+    return left[:3] / FORCE_PRIORITY, left[3:]
+
+
+def moment_residuals(humanoid: Humanoid, qpos: np.ndarray, qvel: np.ndarray, force: np.ndarray, com: np.ndarray,
+                     dt: float, step: int, tolerance: float,
+                     friction: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Measure 3 for frames h..h+T-1: dL/dt (T, 3) in N m and its residual (T, 3) in body-weight metres.
+
+    Args:
+        qpos: Shape: (T + 2h, nq).
+        qvel: Shape: (T + 2h, nv).
+        force: Measure 1's F of frames h..h+T-1. Shape: (T, 3), N.
+        com: Centre of mass of every frame. Shape: (T + 2h, 3), m.
+    """
+    rate = triangle_rate(angular_momentum(humanoid, qpos, qvel), dt, step)
+    points = support_points(humanoid, qpos)
+    weight = body_weight(humanoid)
+    left = np.empty_like(rate)
+    for j in range(len(rate)):
+        near = points[j : j + 2 * step + 1].reshape(-1, 3)
+        near = near[near[:, 2] <= tolerance]
+        floor = np.unique(np.round(near[:, :2], 4), axis=0)
+        floor = np.concatenate([floor, np.zeros((len(floor), 1))], axis=1)
+        left[j] = contact_wrench_residual(force[j], rate[j], com[j + step], floor, friction, weight)[1]
+    return rate, left
+
+
 def measure(humanoid: Humanoid, qpos: np.ndarray, qvel: np.ndarray, dt: float, step: int = MIN_STEP,
             tolerance: float = CONTACT_TOLERANCE, friction: float | None = None) -> FrameFeasibility:  # fmt: skip
-    """Both measures for frames h..h+T-1 of a reference given on a grid of step dt.
+    """The three measures for frames h..h+T-1 of a reference given on a grid of step dt.
 
     Args:
         humanoid: The model.
@@ -315,12 +516,13 @@ def measure(humanoid: Humanoid, qpos: np.ndarray, qvel: np.ndarray, dt: float, s
     qfrc = inverse_dynamics(humanoid, qpos[inner], qvel[inner], qacc)
     qfrc_free = inverse_dynamics(humanoid, qpos[inner], qvel[inner], qacc, constraints=False)
     torque = qfrc[:, humanoid.hinge_dof]
+    rate, moment_left = moment_residuals(humanoid, qpos, qvel, force, com, dt, step, tolerance, mu)
     return FrameFeasibility(
         force=force, contact=contact, clearance=clearance[inner], residual=residual_force(force, contact, mu) / weight,
         hinge_torque=torque, hinge_ratio=hinge_ratios(humanoid, torque),
         root_residual=np.linalg.norm(qfrc[:, 0:3], axis=-1) / weight,
         hinge_ratio_unconstrained=hinge_ratios(humanoid, qfrc_free[:, humanoid.hinge_dof]),
-        range_excess=range_excess(humanoid, qpos[inner]),
+        range_excess=range_excess(humanoid, qpos[inner]), moment_rate=rate, moment_residual=moment_left,
     )  # fmt: skip
 
 
@@ -360,6 +562,9 @@ def summarise(humanoid: Humanoid, frames: FrameFeasibility, first_frame: int) ->
     over_free, p95_free, worst_free = _hinge_summary(frames.hinge_ratio_unconstrained)
     beyond = frames.range_excess.max(axis=0)
     peak = int(np.argmax(frames.residual))
+    moment = np.linalg.norm(frames.moment_residual, axis=-1)
+    fits = frames.residual < FORCE_FITS  # frames whose force lies in the cone: the moment is all that is left
+    fit_moment, fit_yaw = moment[fits], np.abs(frames.moment_residual[fits, 2])
     return {
         "frames": len(frames.residual),
         "residual_mean": float(frames.residual.mean()),
@@ -382,6 +587,14 @@ def summarise(humanoid: Humanoid, frames: FrameFeasibility, first_frame: int) ->
         "out_of_range_share": float(np.mean((frames.range_excess > 0.0).any(axis=1))),
         "out_of_range_joint": names[int(np.argmax(beyond))] if beyond.max() > 0.0 else None,
         "out_of_range_max_rad": float(beyond.max()),
+        "moment_rate_mean": float(np.linalg.norm(frames.moment_rate, axis=-1).mean() / body_weight(humanoid)),
+        "moment_residual_mean": float(moment.mean()),
+        "force_fits_share": float(fits.mean()),
+        "moment_residual_fit_mean": float(fit_moment.mean()) if fits.any() else None,
+        "moment_residual_fit_p95": float(np.percentile(fit_moment, 95)) if fits.any() else None,
+        "moment_residual_fit_share_over": float(np.mean(fit_moment > MOMENT_THRESHOLD)) if fits.any() else None,
+        "yaw_residual_fit_mean": float(fit_yaw.mean()) if fits.any() else None,
+        "yaw_residual_fit_p95": float(np.percentile(fit_yaw, 95)) if fits.any() else None,
     }
 
 
@@ -407,7 +620,8 @@ def table(rows: dict[str, dict[str, Any]]) -> str:
     """One line per clip; forces in body weights m g, torques as |torque| / limit."""
     lines = [f"{'clip':<15}{'frames':>6}{'h':>3}{'res mean':>9}{'res p95':>8}{'>0.1mg':>7}{'flight':>7}{'min z cm':>9}"
              f"{'root mean':>10}{'root p95':>9}{'hinge>lim':>10}  {'worst joint (p95 ratio)':<26}"
-             f"{'unconstr.>lim':>13}  {'worst joint (p95 ratio)':<26}out of range"]  # fmt: skip
+             f"{'unconstr.>lim':>13}  {'worst joint (p95 ratio)':<26}{'out of range':<30}{'dL/dt':>6}{'mom res':>8}"
+             f"{'fits':>5}{'mom|fit':>8}{'>0.05':>6}{'yaw|fit':>8}{'yaw p95':>8}"]  # fmt: skip
     for name, r in rows.items():
         beyond = r["out_of_range_joint"]
         lines.append(
@@ -417,9 +631,21 @@ def table(rows: dict[str, dict[str, Any]]) -> str:
             f"  {_joint_cell(r['worst_joint'], r['worst_joint_p95_ratio']):<26}"
             f"{r['unconstrained_hinge_over_share']:>13.0%}"
             f"  {_joint_cell(r['unconstrained_worst_joint'], r['unconstrained_worst_joint_p95_ratio']):<26}"
-            f"{r['out_of_range_share']:.0%}" + (f" {beyond} by {r['out_of_range_max_rad']:.2f} rad" if beyond else "")
+            + f"{r['out_of_range_share']:.0%}{_beyond_cell(beyond, r['out_of_range_max_rad']):<26}"
+            f"{r['moment_rate_mean']:>6.3f}{r['moment_residual_mean']:>8.3f}{r['force_fits_share']:>5.0%}"
+            + _cells(r, ("moment_residual_fit_mean", 8, ".3f"), ("moment_residual_fit_share_over", 6, ".0%"),
+                     ("yaw_residual_fit_mean", 8, ".3f"), ("yaw_residual_fit_p95", 8, ".3f"))  # fmt: skip
         )
     return "\n".join(lines)
+
+
+def _cells(row: dict[str, Any], *cells: tuple[str, int, str]) -> str:
+    """Right-aligned cells (key, width, format) of a row, '-' where the value is None."""
+    return "".join(f"{'-' if row[k] is None else format(row[k], spec):>{width}}" for k, width, spec in cells)
+
+
+def _beyond_cell(joint: str | None, rad: float) -> str:
+    return f" {joint} by {rad:.2f} rad" if joint else ""
 
 
 def _joint_cell(name: str, ratio: float) -> str:
@@ -470,13 +696,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     friction = model_friction(humanoid) if args.friction is None else args.friction
     rows = assess(humanoid, library, steps, args.contact_tolerance, friction)
     print(f"contact tolerance {args.contact_tolerance} m, friction mu = {friction:g}, mass {total_mass(humanoid):.1f} "
-          f"kg, dt = {library.dt:.5f} s, h = differencing step; forces in body weights m g")  # fmt: skip
+          f"kg, dt = {library.dt:.5f} s, h = differencing step; forces in body weights m g, moments (dL/dt and "
+          f"its residual) in body-weight metres; fits: frames whose force is in the cone (residual < {FORCE_FITS}), "
+          f"over which mom|fit, >{MOMENT_THRESHOLD} and yaw|fit (the vertical part) are taken")  # fmt: skip
     print(table(rows))
     if args.out is not None:
         out = {"contact_tolerance_m": args.contact_tolerance, "friction": friction,
                "friction_source": "model" if args.friction is None else "--friction", "mass_kg": total_mass(humanoid),
                "gravity": [float(g) for g in humanoid.model.opt.gravity], "dt": library.dt,
-               "residual_threshold_body_weights": RESIDUAL_THRESHOLD, "clips": rows}  # fmt: skip
+               "residual_threshold_body_weights": RESIDUAL_THRESHOLD, "force_fits_body_weights": FORCE_FITS,
+               "moment_threshold_body_weight_metres": MOMENT_THRESHOLD, "force_priority": FORCE_PRIORITY,
+               "pyramid_edges": PYRAMID_EDGES, "clips": rows}  # fmt: skip
         with atomic_output(args.out) as tmp:
             tmp.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
         print(f"written: {args.out}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
 
@@ -15,19 +16,24 @@ from samcon.feasibility import (
     CONTACT_TOLERANCE,
     FrameFeasibility,
     accel_step,
+    angular_momentum,
     body_weight,
     clip_reference,
     com_and_clearance,
+    contact_wrench_residual,
     hinge_ratios,
     main,
     measure,
     model_friction,
+    nnls,
+    pyramid,
     range_excess,
     residual_force,
     residual_vector,
     summarise,
     torque_limits,
     total_mass,
+    triangle_rate,
 )
 
 STEP = 2
@@ -128,6 +134,139 @@ def test_ballistic_flight_has_no_residual_and_needs_no_torque(clips) -> None:
     # Free fall of a rigid pose: no generalised force anywhere.
     np.testing.assert_allclose(frames.root_residual, 0.0, atol=1e-9)
     np.testing.assert_allclose(frames.hinge_torque, 0.0, atol=1e-8)
+    # A rigid pose moving without turning has no angular momentum, so it needs no moment either.
+    np.testing.assert_allclose(frames.moment_rate, 0.0, atol=1e-9)
+    np.testing.assert_allclose(frames.moment_residual, 0.0, atol=1e-12)
+
+
+def _flight(humanoid: Humanoid, couple: np.ndarray, frames: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The character thrown with random joint velocities, nothing acting but gravity and ``couple`` (world, on the
+    pelvis), sampled every dt: RK4 at dt / 10, no contacts, limits, actuators or armature (which MuJoCo's angular
+    momentum does not count)."""
+    m = copy.copy(humanoid.model)
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    m.dof_armature[:] = 0.0
+    m.opt.integrator, m.opt.timestep = mujoco.mjtIntegrator.mjINT_RK4, dt / 10.0
+    data = mujoco.MjData(m)
+    data.qpos[2], data.qpos[3] = 2.0, 1.0
+    data.qvel[:] = np.random.default_rng(1).normal(0.0, 1.0, m.nv)
+    data.xfrc_applied[1, 3:] = couple
+    qpos, qvel = [], []
+    for _ in range(frames):
+        qpos.append(data.qpos.copy())
+        qvel.append(data.qvel.copy())
+        mujoco.mj_step(m, data, nstep=10)
+    return np.array(qpos), np.array(qvel)
+
+
+def test_angular_momentum_is_conserved_in_flight_and_a_couple_is_its_rate(clips) -> None:
+    humanoid, library = clips
+    dt = library.dt
+    qpos, qvel = _flight(humanoid, np.zeros(3), 12, dt)
+    moment = angular_momentum(humanoid, qpos, qvel)
+    assert np.linalg.norm(moment[0]) > 1.0  # the limbs flail: the momentum is not trivially 0
+    np.testing.assert_allclose(moment, np.tile(moment[0], (len(moment), 1)), atol=1e-7)
+    # A constant couple on the pelvis (world frame) turns L at exactly that rate, whatever the limbs do.
+    couple = np.array([3.0, -20.0, 12.0])
+    qpos, qvel = _flight(humanoid, couple, 8, dt)
+    rate = triangle_rate(angular_momentum(humanoid, qpos, qvel), dt, STEP)
+    np.testing.assert_allclose(rate, np.tile(couple, (len(rate), 1)), atol=1e-3)  # RK4's error: ~5e-5 N m
+    # In flight nothing can supply it: the residual is the couple, in body-weight metres.
+    frames = measure(humanoid, qpos, qvel, dt, STEP)
+    assert not frames.contact.any()
+    np.testing.assert_allclose(frames.moment_residual, np.tile(couple, (len(rate), 1)) / body_weight(humanoid),
+                               atol=1e-6)  # fmt: skip
+
+
+def test_angular_momentum_by_finite_differences(clips) -> None:
+    humanoid, library = clips
+    m = humanoid.model
+    qpos, qvel = library.frames.qpos[7].copy(), np.random.default_rng(0).normal(0.0, 1.0, m.nv)
+
+    def inertial(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        data = mujoco.MjData(m)
+        data.qpos[:] = q
+        mujoco.mj_kinematics(m, data)
+        return data.xipos.copy(), data.ximat.reshape(-1, 3, 3).copy()
+
+    eps = 1e-7
+    moved = qpos.copy()
+    mujoco.mj_integratePos(m, moved, qvel, eps)
+    (x0, r0), (x1, r1) = inertial(qpos), inertial(moved)
+    mass = m.body_mass
+    com, velocity = mass @ x0 / mass.sum(), (x1 - x0) / eps
+    expected = np.zeros(3)
+    for b in range(1, m.nbody):  # sum of m (x - c) x (v - v_c) + R I R^T w over the bodies
+        spin = (r1[b] - r0[b]) @ r0[b].T / eps
+        omega = np.array([spin[2, 1], spin[0, 2], spin[1, 0]])
+        inertia = r0[b] @ np.diag(m.body_inertia[b]) @ r0[b].T
+        expected += mass[b] * np.cross(x0[b] - com, velocity[b] - mass @ velocity / mass.sum()) + inertia @ omega
+    np.testing.assert_allclose(angular_momentum(humanoid, qpos[None], qvel[None])[0], expected, rtol=1e-5, atol=1e-5)
+
+
+def test_triangle_rate_is_exact_for_a_linear_quantity() -> None:
+    t = np.arange(11) * 0.1
+    values = np.stack([2.0 - 3.0 * t, 0.5 * t], axis=1)
+    np.testing.assert_allclose(triangle_rate(values, 0.1, 3), np.tile([-3.0, 0.5], (5, 1)), atol=1e-12)
+    # The slope steps from 0 to 1 at t = 0.5: the triangle centred there (frame 5, row 5 - h) weighs each side 1/2,
+    # and 0.1 s on (row 4) 7/8 of it lies past the kink, where the rate is its mean 7/8.
+    rate = triangle_rate(np.maximum(0.0, t - 0.5), 0.1, 2)
+    assert rate[3] == pytest.approx(0.5) and rate[4] == pytest.approx(0.875)
+
+
+def test_nnls_meets_its_optimality_conditions() -> None:
+    np.testing.assert_allclose(nnls(np.eye(2), np.array([1.0, -2.0])), [1.0, 0.0])
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        a, b = rng.normal(size=(6, 40)), rng.normal(size=6)
+        x = nnls(a, b)
+        gradient = a.T @ (b - a @ x)
+        assert x.min() >= 0.0
+        assert gradient.max() <= 1e-9  # no x_j may grow and lower the error ...
+        np.testing.assert_allclose(gradient[x > 0.0], 0.0, atol=1e-9)  # ... nor move where it is free
+    # Against a brute force over every support of a small problem.
+    a, b = rng.normal(size=(3, 5)), rng.normal(size=3)
+    best = min(
+        (np.linalg.norm(a[:, s] @ np.linalg.lstsq(a[:, s], b, rcond=None)[0] - b)
+         for k in range(1, 6) for s in map(list, __import__("itertools").combinations(range(5), k))
+         if np.all(np.linalg.lstsq(a[:, s], b, rcond=None)[0] >= 0.0)),
+        default=np.linalg.norm(b),
+    )  # fmt: skip
+    assert np.linalg.norm(a @ nnls(a, b) - b) == pytest.approx(min(best, np.linalg.norm(b)), abs=1e-10)
+
+
+def test_pyramid_holds_the_friction_cone() -> None:
+    edges = pyramid(0.8)
+    np.testing.assert_allclose(edges[:, 2], 1.0)
+    np.testing.assert_allclose(np.linalg.norm(edges[:, :2], axis=1), 0.8 / np.cos(np.pi / 8))
+    # Each tangential direction reaches at least mu along it: the polygon's support function >= mu everywhere.
+    for angle in np.linspace(0.0, 2.0 * np.pi, 73):
+        direction = np.array([np.cos(angle), np.sin(angle)])
+        assert (edges[:, :2] @ direction).max() >= 0.8 - 1e-12
+
+
+def test_wrench_residual_hand_computed() -> None:
+    weight, mu, half = 400.0, 0.5, 0.1
+    up, com = np.array([0.0, 0.0, weight]), np.array([0.0, 0.0, 0.9])
+    corners = np.array([[x, y, 0.0] for x in (-half, half) for y in (-half, half)])
+    # A square foot under the CoM turns the body about the vertical through the lever of its four corners: at most
+    # mu' W half sqrt 2 with the pyramid's mu' = mu / cos(pi / 8) (each corner's tangent is one of its edges).
+    most = mu / np.cos(np.pi / 8) * weight * half * np.sqrt(2.0)
+    for yaw, left in ((0.5 * most, 0.0), (most + 20.0, 20.0)):
+        force_left, moment_left = contact_wrench_residual(up, np.array([0.0, 0.0, yaw]), com, corners, mu, weight)
+        np.testing.assert_allclose(force_left, 0.0, atol=1e-7)
+        np.testing.assert_allclose(moment_left, [0.0, 0.0, left / weight], atol=1e-6)
+    # One point 0.2 m ahead of the CoM: holding the weight there tips the body forward (a moment -0.2 W about y),
+    # which the reference, not turning, does not have: 0.2 body-weight metres about +y are left.
+    # (The force rows' weight of 1000 lets the fit trade 2e-7 body weights of force for moment: the priority's slack.)
+    force_left, moment_left = contact_wrench_residual(up, np.zeros(3), com, np.array([[0.2, 0.0, 0.0]]), mu, weight)
+    np.testing.assert_allclose(force_left, 0.0, atol=1e-6)
+    np.testing.assert_allclose(moment_left, [0.0, 0.2, 0.0], atol=1e-5)
+    # No contact: all of both is left.
+    force_left, moment_left = contact_wrench_residual(up, np.array([1.0, 2.0, 3.0]), com, np.zeros((0, 3)), mu, weight)
+    np.testing.assert_allclose(force_left, [0.0, 0.0, 1.0])
+    np.testing.assert_allclose(moment_left, np.array([1.0, 2.0, 3.0]) / weight)
 
 
 def test_hinge_torques_are_qfrc_inverse_at_the_actuated_dofs(clips) -> None:
@@ -165,7 +304,8 @@ def test_a_hinge_over_its_limit_is_counted(clips) -> None:
     zeros = np.zeros(4)
     frames = FrameFeasibility(force=np.zeros((4, 3)), contact=np.ones(4, bool), clearance=zeros, residual=zeros,
                               hinge_torque=torque, hinge_ratio=ratio, root_residual=zeros,
-                              hinge_ratio_unconstrained=0.0 * ratio, range_excess=0.0 * ratio)  # fmt: skip
+                              hinge_ratio_unconstrained=0.0 * ratio, range_excess=0.0 * ratio,
+                              moment_rate=np.zeros((4, 3)), moment_residual=np.zeros((4, 3)))  # fmt: skip
     row = summarise(humanoid, frames, first_frame=STEP)
     assert row["hinge_over_share"] == 0.5 and row["worst_joint"] == "right_knee"
     assert row["worst_joint_over_share"] == 0.5

@@ -256,3 +256,14 @@ def test_follow_is_set_per_pass() -> None:
     assert [PolishConfig(passes=3, follow=True, lookahead=5).for_pass(p).lookahead for p in range(3)] == [5, 5, 5]
     with pytest.raises(ValueError, match="one value per pass"):
         PolishConfig(passes=2, follow=(True,))
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [({"window": 8, "stride": 9}, "stride <= window"), ({"body": 0.0}, "body > 0"), ({"eps": 0.0}, "eps > 0"),
+     ({"mu_min": 2.0}, "mu_min <= mu_init"), ({"control": -1.0}, "control >= 0")],
+)  # fmt: skip
+def test_bad_polish_settings_are_refused(settings: dict, message: str) -> None:
+    """(These checks sat after a return until session 25 and never ran.)"""
+    with pytest.raises(ValueError, match=message):
+        PolishConfig(**settings)
