@@ -23,6 +23,11 @@ candidates' centre, many states kept per segment) with a smaller cap, down to no
 the assisted path alone at a smaller cap (``--then-caps``) fell on run and dance_a (session 20): one path, played from
 where the lost help first lets it drift, has nothing to correct the drift with.
 
+``--then-couple W1 W2 ...`` (session 25) takes a couple away inside the polish instead: the last path's couple (as
+its law gave it) becomes three more controls of the iLQR (:class:`samcon.polish.Couple`), each frame's costing W x
+its squared norm, polished with each weight in turn (rising), and then the path is polished once more without it,
+an unassisted open-loop path. The optimiser moves the work from the couple to the targets while it keeps the path.
+
 The force is a function of the clip frame and the state, so an assisted path is still open loop and replays
 bit-exactly with the law (:func:`samcon.search.assisted_replay`); the polish rolls out with the law and its
 linearisation counts the law's dependence on the state. The residual fed forward alone (``scale`` 1, no feedback)
@@ -76,6 +81,7 @@ from samcon.feasibility import (
     residual_vector,
     total_mass,
 )
+from samcon.polish import ROOT_TURN, Couple, polish
 from samcon.search import assisted_replay, horizon, reference_frames, replay, samcon, start_state
 from samcon.track import cli_overrides, clip_generator, polished, segment_progress
 
@@ -290,8 +296,8 @@ def _forces(forces: np.ndarray, weight: float, torque: bool, start: np.ndarray, 
 
 def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
                    log: Any, then_caps: Sequence[float] = (), then_search: Sequence[tuple[float, float]] = (),
-                   then_sigma: float = 0.1,
-                   start_path: np.ndarray | None = None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
+                   then_sigma: float = 0.1, start_path: np.ndarray | None = None,
+                   then_couple: Sequence[float] = ()) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
     """One clip: the search of ``cfg`` (and its polish when on) with the root force of ``acfg``, judged open loop
     from the clip's start with the force replayed. The draws are ``track-samcon``'s (its seed and the clip's name).
 
@@ -307,6 +313,10 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
 
     ``start_path`` (F, nu): instead of the search (and polish, and ``then_caps``), this path (e.g. a stage saved by
     ``--paths``), judged with ``acfg``'s law (``row["given"]``), is where ``then_search`` starts.
+
+    ``then_couple`` weights (per (N m)^2 per frame): last, the couple the last path's law gives (a law without
+    force: its caps' force cap 0) is polished as a control with each weight in turn (``row["then_couple"]``,
+    judged with the couple held), then the path without it (``row["unassisted"]``); see the module docstring.
 
     Returns:
         The row of figures, and the paths: ``start_state`` and the targets of every stage (``searched``,
@@ -330,7 +340,7 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         row |= _forces(forces, weight, torque, first, states)
         paths = {"start_state": first, "given": np.asarray(start_path, dtype=float)}
         return _search_around(cfg, acfg, humanoid, library, clip, log, row, paths, paths["given"], 0, 0.0,
-                              then_search, then_sigma, rng, common)  # fmt: skip
+                              then_search, then_sigma, rng, common, then_couple)  # fmt: skip
     traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng,
                   assist=partial(RootAssist, humanoid, cfg=acfg), **common)  # fmt: skip
     paths = {"start_state": traj.start_state, "searched": traj.targets}
@@ -353,16 +363,19 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         print(f"{name}: polished again with cap {cap:g}: MPJPE-g {judged['mpjpe_g']:.1f} mm{fell}", file=log,
               flush=True)  # fmt: skip
     return _search_around(cfg, acfg, humanoid, library, clip, log, row, paths, traj.targets, traj.samples,
-                          traj.seconds, then_search, then_sigma, rng, common)  # fmt: skip
+                          traj.seconds, then_search, then_sigma, rng, common, then_couple)  # fmt: skip
 
 
 def _search_around(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
                    log: Any, row: dict[str, Any], paths: dict[str, np.ndarray], centre: np.ndarray, samples: int,
                    seconds: float, then_search: Sequence[tuple[float, float]], then_sigma: float,
-                   rng: np.random.Generator, common: dict[str, Any]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """:func:`track_assisted`'s ``then_search`` stages from the path ``centre``, adding to its row and paths."""
+                   rng: np.random.Generator, common: dict[str, Any],
+                   then_couple: Sequence[float] = ()) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
+    """:func:`track_assisted`'s ``then_search`` and ``then_couple`` stages from the path ``centre`` (under
+    ``acfg``'s law), adding to its row and paths."""
     name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
     ref, weight = reference_frames(library, clip, frames), body_weight(humanoid)
+    stage = acfg
     for i, (force_cap, torque_cap) in enumerate(then_search):
         stage = replace(acfg, cap=force_cap, torque_cap=torque_cap)
         print(f"{name}: searching around the last path with force cap {force_cap:g}, torque cap {torque_cap:g}",
@@ -390,9 +403,54 @@ def _search_around(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         print(f"{name}: searched around the last path with force cap {force_cap:g}, torque cap {torque_cap:g}: "
               f"MPJPE-g {result['searched']['mpjpe_g']:.1f} mm searched, {last['mpjpe_g']:.1f} mm last{fell}",
               file=log, flush=True)  # fmt: skip
+    if then_couple:
+        seconds += _couple_away(cfg, stage, humanoid, library, clip, log, row, paths, centre, then_couple)
     row |= {"samples": samples, "minutes": seconds / 60.0,
             "minutes_per_motion_second": seconds / 60.0 / (frames * library.dt)}  # fmt: skip
     return row, paths
+
+
+def _couple_away(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
+                 log: Any, row: dict[str, Any], paths: dict[str, np.ndarray], targets: np.ndarray,
+                 weights: Sequence[float]) -> float:  # fmt: skip
+    """:func:`track_assisted`'s ``then_couple`` stages from ``targets`` under ``acfg``'s law, adding to its row and
+    paths (``then_couple_<i>`` and its ``then_couple_<i>_couple`` (F, 3) in N m, ``unassisted``). Returns the
+    polishes' seconds."""
+    name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
+    ref, weight = reference_frames(library, clip, frames), body_weight(humanoid)
+    ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
+    first = start_state(library, humanoid, clip, cfg.train.eval.rsi_lift)
+    law = RootAssist(humanoid, library, clip, frames, acfg)
+    _, forces = assisted_replay(humanoid, first, targets, law, 0, cfg.gym.max_speed)
+    if np.abs(forces[:, :3]).max() > 0.0:
+        raise ValueError(f"{name}: --then-couple takes a couple away, but the last path's law also gives a root force "
+                         f"(force cap {acfg.cap:g}); end --then-search with a force cap of 0")  # fmt: skip
+    values, seconds = forces[:, ROOT_TURN], 0.0
+    pcfg = replace(cfg.polish, follow=False)  # a look-ahead played by an LQR cannot carry the couple
+    common = dict(lqr=cfg.lqr, name=name, log=log)
+    for i, w in enumerate(weights):
+        targets, summary = polish(humanoid, first, targets, ref, ref_targets, pcfg, cfg.cost.fall_head_error,
+                                  couple=Couple(values, w), **common)  # fmt: skip
+        values, seconds = summary.pop("couple"), seconds + summary["seconds"]
+        states, _ = assisted_replay(humanoid, first, targets, Couple(values, w).law(humanoid.nv), 0,
+                                    cfg.gym.max_speed)  # fmt: skip
+        norm = np.linalg.norm(values, axis=1) / weight
+        judged = judge(humanoid, states, ref[1:], cfg.train.eval) | {
+            "weight": w, "kept": bool(summary["kept"]),
+            "torque_body_weight_metres": {"mean": float(norm.mean()), "p95": float(np.percentile(norm, 95)),
+                                          "max": float(norm.max())}}  # fmt: skip
+        row.setdefault("then_couple", []).append(judged)
+        paths[f"then_couple_{i}"], paths[f"then_couple_{i}_couple"] = targets, values
+        print(f"{name}: polished with the couple as a control at weight {w:g}: MPJPE-g {judged['mpjpe_g']:.1f} mm, "
+              f"couple mean {norm.mean():.3f} body-weight metres", file=log, flush=True)  # fmt: skip
+    targets, summary = polish(humanoid, first, targets, ref, ref_targets, cfg.polish, cfg.cost.fall_head_error,
+                              **common)  # fmt: skip
+    seconds += summary["seconds"]
+    states = replay(humanoid, first, targets, cfg.gym.max_speed)
+    row["unassisted"] = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(summary["kept"])}
+    paths["unassisted"] = targets
+    print(f"{name}: without the couple, polished: MPJPE-g {row['unassisted']['mpjpe_g']:.1f} mm", file=log, flush=True)
+    return seconds
 
 
 def _cap_pair(spec: str) -> tuple[float, float]:
@@ -461,6 +519,11 @@ def build_parser() -> argparse.ArgumentParser:
                              "the result is an unassisted open-loop path)")  # fmt: skip
     parser.add_argument("--then-sigma", type=float, default=0.1, metavar="RAD",
                         help="sigma_init of the searches of --then-search (default: %(default)s)")
+    parser.add_argument("--then-couple", type=float, nargs="+", default=[], metavar="WEIGHT",
+                        help="last, polish the path with its root couple as a control costing WEIGHT x |couple|^2 "
+                             "per frame ((N m)^-2, in the polish's cost units) for each weight in turn (rising, e.g. "
+                             "1e-5 1e-4 1e-3), then once more without it: an unassisted open-loop path; needs a "
+                             "polish and a law without force (--cap 0, or a last --then-search pair 0:C)")  # fmt: skip
     parser.add_argument("--start-path", default=None, metavar="FILE.npz:STAGE",
                         help="skip the search: start --then-search from each clip's path STAGE of a --paths file "
                              "(e.g. runs/a.npz:then_search_0), judged first with --cap and --torque-cap")  # fmt: skip
@@ -493,8 +556,14 @@ def main(argv: Sequence[str] | None = None) -> None:
             raise ConfigError(f"--then-caps needs caps >= 0 and a config with a polish ({args.config}: "
                               f"polish.iterations {cfg.polish.iterations})")  # fmt: skip
         then_search = [_cap_pair(spec) for spec in args.then_search]
-        if args.start_path and (args.then_caps or not then_search):
-            raise ConfigError("--start-path needs --then-search and takes no --then-caps")
+        if args.start_path and (args.then_caps or not (then_search or args.then_couple)):
+            raise ConfigError("--start-path needs --then-search or --then-couple and takes no --then-caps")
+        if args.then_couple and (not cfg.polish.iterations or min(args.then_couple) <= 0.0):
+            raise ConfigError(f"--then-couple needs weights > 0 and a config with a polish ({args.config}: "
+                              f"polish.iterations {cfg.polish.iterations})")  # fmt: skip
+        if args.then_couple and (then_search[-1][0] if then_search else args.cap) > 0.0:
+            raise ConfigError("--then-couple takes a root couple away, not a force: the last path's force cap (--cap, "
+                              "or the last --then-search pair's first number) must be 0")  # fmt: skip
         if not args.then_sigma > 0.0:
             raise ConfigError(f"--then-sigma must be > 0, got {args.then_sigma}")
         if cfg.polish.iterations and cfg.polish.search:
@@ -512,20 +581,22 @@ def main(argv: Sequence[str] | None = None) -> None:
         sys.exit(f"error: {e}")
     out: dict[str, Any] = {"config": args.config, "overrides": args.overrides, "assist": vars(acfg), "clips": {},
                            "then_search": then_search, "then_sigma": args.then_sigma,
-                           "start_path": args.start_path}  # fmt: skip
+                           "then_couple": args.then_couple, "start_path": args.start_path}  # fmt: skip
     paths: dict[str, np.ndarray] = {}
     t0 = time.perf_counter()
     for c, name in enumerate(library.names):
         step = acfg.step or accel_step(1.0 / clips[c].source_fps, library.dt)
         row, clip_paths = track_assisted(cfg, replace(acfg, step=step), humanoid, library, c, sys.stdout,
                                          args.then_caps, then_search, args.then_sigma,
-                                         None if given is None else given[name])  # fmt: skip
+                                         None if given is None else given[name], args.then_couple)  # fmt: skip
         out["clips"][name] = row
         paths |= {f"{name}/{key}": value for key, value in clip_paths.items()}
         stages = [(key, row[key]) for key in ("given", "searched", "polished") if key in row]
         stages += [(f"at cap {t['cap']:g}", t) for t in row.get("then", [])]
         stages += [(f"around it at caps {t['force_cap']:g}:{t['torque_cap']:g}", t.get("polished", t["searched"]))
                    for t in row.get("then_search", [])]  # fmt: skip
+        stages += [(f"with the couple at weight {t['weight']:g}", t) for t in row.get("then_couple", [])]
+        stages += [("without it", row["unassisted"])] if "unassisted" in row else []
         figures = ", ".join(f"{j['mpjpe_g']:.1f} mm {label}" + ("" if j["fell_at"] is None else f" (fell at step "
                             f"{j['fell_at']})") for label, j in stages)  # fmt: skip
         torque = row.get("torque_body_weight_metres")

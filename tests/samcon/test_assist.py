@@ -21,6 +21,7 @@ from samcon.config import CostConfig, SearchConfig
 from samcon.feasibility import body_weight, com_and_clearance, total_mass
 from samcon.feedback import ClipPlan, open_loop_policy
 from samcon.lqr import linearise, nominal_states
+from samcon.polish import Couple
 from samcon.search import HeldForces, assisted_replay, reference_frames, replay, samcon, start_state
 
 
@@ -184,6 +185,34 @@ def test_command_searches_around_the_assisted_path_down_to_none(tmp_path: Path) 
               "--start-path", f"{paths}:nope", "--then-search", "0:0"])  # fmt: skip
 
 
+def test_command_takes_the_couple_away_inside_the_polish(tmp_path: Path) -> None:
+    """--then-couple: the torque-assisted path's couple polished as a control at a cheap and then a dear weight, then
+    the path without it. Each couple stage replays, its couple held, to the figures reported; the dear weight leaves
+    almost no couple; the last path replays without any force to its figures."""
+    out, paths = tmp_path / "assist.json", tmp_path / "paths.npz"
+    main(["--config", "configs/samcon/debug.yaml", "--motions", "walk", "--set", "polish.search=false",
+          "--cap", "0", "--torque-cap", "0.2", "--then-couple", "1e-4", "1", "--out", str(out),
+          "--paths", str(paths)])  # fmt: skip
+    data = json.loads(out.read_text())
+    row = data["clips"]["walk"]
+    assert data["then_couple"] == [1e-4, 1.0] and [t["weight"] for t in row["then_couple"]] == [1e-4, 1.0]
+    cheap, dear = (t["torque_body_weight_metres"]["mean"] for t in row["then_couple"])
+    assert dear < 1e-3 * cheap
+    saved = np.load(paths)
+    assert {"walk/then_couple_0", "walk/then_couple_1_couple", "walk/unassisted"} <= set(saved.files)
+    humanoid = Humanoid()
+    library = load_motions(["walk"], humanoid)
+    ev = EvalConfig(starts_per_clip=1, max_frames=6, threads=1)
+    ref = reference_frames(library, 0, 6)[1:]
+    start = saved["walk/start_state"]
+    for i, stage in enumerate(row["then_couple"]):
+        law = Couple(saved[f"walk/then_couple_{i}_couple"], stage["weight"]).law(humanoid.nv)
+        states, _ = assisted_replay(humanoid, start, saved[f"walk/then_couple_{i}"], law)
+        assert judge(humanoid, states, ref, ev)["mpjpe_g"] == stage["mpjpe_g"]
+    got = judge(humanoid, replay(humanoid, start, saved["walk/unassisted"]), ref, ev)
+    assert got["mpjpe_g"] == row["unassisted"]["mpjpe_g"] and got["fell_at"] == row["unassisted"]["fell_at"]
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [(["--motions", "nosuchclip"], "nosuchclip"), (["--cap", "-1"], "cap"), (["--set", "search.bogus=1"], "bogus"),
@@ -191,7 +220,9 @@ def test_command_searches_around_the_assisted_path_down_to_none(tmp_path: Path) 
      (["--set", "polish.iterations=0", "--then-caps", "0"], "--then-caps"),
      (["--then-search", "0.1"], "FORCE_CAP:TORQUE_CAP"), (["--then-search", "0:-1"], ">= 0"),
      (["--then-search", "0:0", "--then-sigma", "0"], "--then-sigma"),
-     (["--start-path", "a.npz:polished"], "--start-path needs --then-search")],
+     (["--start-path", "a.npz:polished"], "--start-path needs --then-search"),
+     (["--cap", "0", "--then-couple", "0"], "weights > 0"), (["--cap", "0.5", "--then-couple", "1e-3"], "force cap"),
+     (["--cap", "0", "--then-search", "0.1:0", "--then-couple", "1e-3"], "force cap")],
 )  # fmt: skip
 def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as exit_info:

@@ -11,7 +11,7 @@ from common.character.humanoid import Humanoid
 from common.motion.dataset import load_motions
 from samcon.config import LqrConfig, PolishConfig
 from samcon.lqr import linearise, nominal_states, riccati, state_weights
-from samcon.polish import BodyCost, Follow, backward_pass, deviation, polish, window_rollout
+from samcon.polish import BodyCost, Couple, Follow, backward_pass, deviation, polish, window_rollout
 from samcon.search import HeldForces, reference_frames, start_state
 
 
@@ -142,6 +142,49 @@ def test_polish_lowers_the_cost_and_replays(walk, pushed: bool, follow: bool) ->
     assert replayed.total == summary["cost_after"]
     assert replayed.fell_at == -1
     assert (plain.total == replayed.total) == (not pushed)  # the forces were applied, not ignored
+
+
+@pytest.mark.parametrize("weight", [1e-6, 1.0])
+def test_a_couple_polished_as_a_control_replays_and_a_dear_one_is_taken_away(walk, weight: float) -> None:
+    """From walk's own targets with a yaw couple of 20 N m on the root (a push it does not have), the polish with
+    the couple as three more controls: the targets and couple it returns replay (the couple held) to the cost it
+    reports; cheap (1e-6 per (N m)^2), the couple is what it turns to undo the push (the body error falls, the yaw
+    couple shrinks); dear (1 per (N m)^2, 400 a frame at the start), it is taken away."""
+    humanoid, library = walk
+    frames = 24
+    ref = reference_frames(library, 0, frames)
+    ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
+    start = start_state(library, humanoid, 0)
+    push = Couple(np.tile([0.0, 0.0, 20.0], (frames, 1)), weight)
+    cfg = PolishConfig(iterations=4, window=16, stride=8, lookahead=4, whole_iterations=2)
+    targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, couple=push)
+    values = summary["couple"]
+    assert summary["kept"] and summary["cost_after"] < summary["cost_before"] and values.shape == (frames, 3)
+    cost = BodyCost(humanoid, cfg, ref, ref_targets, 0.25)
+    try:
+        replayed = cost.path_cost(nominal_states(humanoid, start, targets, Couple(values, weight).law(humanoid.nv)),
+                                  targets, 0)  # fmt: skip
+        without = cost.path_cost(nominal_states(humanoid, start, targets), targets, 0)
+    finally:
+        cost.close()
+    assert replayed.total + weight * np.sum(values**2) == pytest.approx(summary["cost_after"], rel=1e-12)
+    assert without.total != replayed.total  # the couple is applied, not ignored
+    if weight < 1e-3:
+        assert summary["body_rms_mm_after"] < 0.2 * summary["body_rms_mm_before"]  # 94 -> 3 mm
+        assert np.abs(values[:, 2]).mean() < 8.0  # most of the push undone (4 N m left on average)
+    else:
+        assert np.sum(values**2) < 0.01 * np.sum(push.values**2)
+
+
+def test_a_couple_as_a_control_refuses_what_it_cannot_combine_with(walk) -> None:
+    humanoid, library = walk
+    ref = reference_frames(library, 0, 8)
+    ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
+    start, couple = start_state(library, humanoid, 0), Couple(np.zeros((8, 3)), 1.0)
+    for cfg, law in ((PolishConfig(iterations=1), HeldForces(np.zeros((8, humanoid.nv)))),
+                     (PolishConfig(iterations=1, window=4, stride=2, follow=True), None)):  # fmt: skip
+        with pytest.raises(ValueError, match="root couple"):
+            polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, law=law, couple=couple)
 
 
 def test_windows_ask_the_searcher_for_the_frames_after_the_last_look_ahead(walk) -> None:
