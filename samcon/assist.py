@@ -297,7 +297,8 @@ def _forces(forces: np.ndarray, weight: float, torque: bool, start: np.ndarray, 
 def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
                    log: Any, then_caps: Sequence[float] = (), then_search: Sequence[tuple[float, float]] = (),
                    then_sigma: float = 0.1, start_path: np.ndarray | None = None,
-                   then_couple: Sequence[float] = ()) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
+                   then_couple: Sequence[float] = (),
+                   again: int = 0) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
     """One clip: the search of ``cfg`` (and its polish when on) with the root force of ``acfg``, judged open loop
     from the clip's start with the force replayed. The draws are ``track-samcon``'s (its seed and the clip's name).
 
@@ -317,6 +318,8 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
     ``then_couple`` weights (per (N m)^2 per frame): last, the couple the last path's law gives (a law without
     force: its caps' force cap 0) is polished as a control with each weight in turn (``row["then_couple"]``,
     judged with the couple held), then the path without it (``row["unassisted"]``); see the module docstring.
+    ``again``: then polish the last, unassisted path that many more times (``row["unassisted"]`` the last, each
+    round's figures in ``row["unassisted_rounds"]``).
 
     Returns:
         The row of figures, and the paths: ``start_state`` and the targets of every stage (``searched``,
@@ -340,7 +343,7 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         row |= _forces(forces, weight, torque, first, states)
         paths = {"start_state": first, "given": np.asarray(start_path, dtype=float)}
         return _search_around(cfg, acfg, humanoid, library, clip, log, row, paths, paths["given"], 0, 0.0,
-                              then_search, then_sigma, rng, common, then_couple)  # fmt: skip
+                              then_search, then_sigma, rng, common, then_couple, again)  # fmt: skip
     traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng,
                   assist=partial(RootAssist, humanoid, cfg=acfg), **common)  # fmt: skip
     paths = {"start_state": traj.start_state, "searched": traj.targets}
@@ -363,15 +366,16 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         print(f"{name}: polished again with cap {cap:g}: MPJPE-g {judged['mpjpe_g']:.1f} mm{fell}", file=log,
               flush=True)  # fmt: skip
     return _search_around(cfg, acfg, humanoid, library, clip, log, row, paths, traj.targets, traj.samples,
-                          traj.seconds, then_search, then_sigma, rng, common, then_couple)  # fmt: skip
+                          traj.seconds, then_search, then_sigma, rng, common, then_couple, again)  # fmt: skip
 
 
 def _search_around(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
                    log: Any, row: dict[str, Any], paths: dict[str, np.ndarray], centre: np.ndarray, samples: int,
                    seconds: float, then_search: Sequence[tuple[float, float]], then_sigma: float,
                    rng: np.random.Generator, common: dict[str, Any],
-                   then_couple: Sequence[float] = ()) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
-    """:func:`track_assisted`'s ``then_search`` and ``then_couple`` stages from the path ``centre`` (under
+                   then_couple: Sequence[float] = (),
+                   again: int = 0) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
+    """:func:`track_assisted`'s ``then_search``, ``then_couple`` and ``again`` stages from the path ``centre`` (under
     ``acfg``'s law), adding to its row and paths."""
     name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
     ref, weight = reference_frames(library, clip, frames), body_weight(humanoid)
@@ -403,8 +407,8 @@ def _search_around(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         print(f"{name}: searched around the last path with force cap {force_cap:g}, torque cap {torque_cap:g}: "
               f"MPJPE-g {result['searched']['mpjpe_g']:.1f} mm searched, {last['mpjpe_g']:.1f} mm last{fell}",
               file=log, flush=True)  # fmt: skip
-    if then_couple:
-        seconds += _couple_away(cfg, stage, humanoid, library, clip, log, row, paths, centre, then_couple)
+    if then_couple or again:
+        seconds += _couple_away(cfg, stage, humanoid, library, clip, log, row, paths, centre, then_couple, again)
     row |= {"samples": samples, "minutes": seconds / 60.0,
             "minutes_per_motion_second": seconds / 60.0 / (frames * library.dt)}  # fmt: skip
     return row, paths
@@ -412,10 +416,11 @@ def _search_around(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
 
 def _couple_away(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
                  log: Any, row: dict[str, Any], paths: dict[str, np.ndarray], targets: np.ndarray,
-                 weights: Sequence[float]) -> float:  # fmt: skip
+                 weights: Sequence[float], again: int = 0) -> float:  # fmt: skip
     """:func:`track_assisted`'s ``then_couple`` stages from ``targets`` under ``acfg``'s law, adding to its row and
-    paths (``then_couple_<i>`` and its ``then_couple_<i>_couple`` (F, 3) in N m, ``unassisted``). Returns the
-    polishes' seconds."""
+    paths (``then_couple_<i>`` and its ``then_couple_<i>_couple`` (F, 3) in N m, ``unassisted``), then with
+    ``weights`` the path polished without the couple, and ``again`` more polishes of it. Returns the polishes'
+    seconds."""
     name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
     ref, weight = reference_frames(library, clip, frames), body_weight(humanoid)
     ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
@@ -443,13 +448,16 @@ def _couple_away(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, libr
         paths[f"then_couple_{i}"], paths[f"then_couple_{i}_couple"] = targets, values
         print(f"{name}: polished with the couple as a control at weight {w:g}: MPJPE-g {judged['mpjpe_g']:.1f} mm, "
               f"couple mean {norm.mean():.3f} body-weight metres", file=log, flush=True)  # fmt: skip
-    targets, summary = polish(humanoid, first, targets, ref, ref_targets, cfg.polish, cfg.cost.fall_head_error,
-                              **common)  # fmt: skip
-    seconds += summary["seconds"]
-    states = replay(humanoid, first, targets, cfg.gym.max_speed)
-    row["unassisted"] = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(summary["kept"])}
-    paths["unassisted"] = targets
-    print(f"{name}: without the couple, polished: MPJPE-g {row['unassisted']['mpjpe_g']:.1f} mm", file=log, flush=True)
+    for j in range((1 if weights else 0) + again):
+        targets, summary = polish(humanoid, first, targets, ref, ref_targets, cfg.polish, cfg.cost.fall_head_error,
+                                  **common)  # fmt: skip
+        seconds += summary["seconds"]
+        states = replay(humanoid, first, targets, cfg.gym.max_speed)
+        row["unassisted"] = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(summary["kept"])}
+        row.setdefault("unassisted_rounds", []).append(row["unassisted"])
+        paths["unassisted"] = targets
+        print(f"{name}: without help, polished (round {j + 1}): MPJPE-g {row['unassisted']['mpjpe_g']:.1f} mm",
+              file=log, flush=True)  # fmt: skip
     return seconds
 
 
@@ -524,6 +532,10 @@ def build_parser() -> argparse.ArgumentParser:
                              "per frame ((N m)^-2, in the polish's cost units) for each weight in turn (rising, e.g. "
                              "1e-5 1e-4 1e-3), then once more without it: an unassisted open-loop path; needs a "
                              "polish and a law without force (--cap 0, or a last --then-search pair 0:C)")  # fmt: skip
+    parser.add_argument("--polish-again", type=int, default=0, metavar="N",
+                        help="last, polish the final unassisted path N more times (after --then-couple, or when the "
+                             "last path has no help: a last --then-search pair 0:0, or --start-path with --cap 0 "
+                             "--torque-cap 0) (default: 0)")  # fmt: skip
     parser.add_argument("--start-path", default=None, metavar="FILE.npz:STAGE",
                         help="skip the search: start --then-search from each clip's path STAGE of a --paths file "
                              "(e.g. runs/a.npz:then_search_0), judged first with --cap and --torque-cap")  # fmt: skip
@@ -556,8 +568,15 @@ def main(argv: Sequence[str] | None = None) -> None:
             raise ConfigError(f"--then-caps needs caps >= 0 and a config with a polish ({args.config}: "
                               f"polish.iterations {cfg.polish.iterations})")  # fmt: skip
         then_search = [_cap_pair(spec) for spec in args.then_search]
-        if args.start_path and (args.then_caps or not (then_search or args.then_couple)):
-            raise ConfigError("--start-path needs --then-search or --then-couple and takes no --then-caps")
+        if args.start_path and (args.then_caps or not (then_search or args.then_couple or args.polish_again)):
+            raise ConfigError("--start-path needs --then-search, --then-couple or --polish-again and takes no "
+                              "--then-caps")  # fmt: skip
+        last = then_search[-1] if then_search else (args.cap, args.torque_cap)
+        if args.polish_again < 0 or (args.polish_again and not cfg.polish.iterations):
+            raise ConfigError(f"--polish-again needs N >= 0 and a config with a polish, got {args.polish_again}")
+        if args.polish_again and not args.then_couple and max(last) > 0.0:
+            raise ConfigError("--polish-again polishes an unassisted path: end with --then-couple, a --then-search "
+                              "pair 0:0, or give --cap 0 --torque-cap 0")  # fmt: skip
         if args.then_couple and (not cfg.polish.iterations or min(args.then_couple) <= 0.0):
             raise ConfigError(f"--then-couple needs weights > 0 and a config with a polish ({args.config}: "
                               f"polish.iterations {cfg.polish.iterations})")  # fmt: skip
@@ -581,14 +600,16 @@ def main(argv: Sequence[str] | None = None) -> None:
         sys.exit(f"error: {e}")
     out: dict[str, Any] = {"config": args.config, "overrides": args.overrides, "assist": vars(acfg), "clips": {},
                            "then_search": then_search, "then_sigma": args.then_sigma,
-                           "then_couple": args.then_couple, "start_path": args.start_path}  # fmt: skip
+                           "then_couple": args.then_couple, "polish_again": args.polish_again,
+                           "start_path": args.start_path}  # fmt: skip
     paths: dict[str, np.ndarray] = {}
     t0 = time.perf_counter()
     for c, name in enumerate(library.names):
         step = acfg.step or accel_step(1.0 / clips[c].source_fps, library.dt)
         row, clip_paths = track_assisted(cfg, replace(acfg, step=step), humanoid, library, c, sys.stdout,
                                          args.then_caps, then_search, args.then_sigma,
-                                         None if given is None else given[name], args.then_couple)  # fmt: skip
+                                         None if given is None else given[name], args.then_couple,
+                                         args.polish_again)  # fmt: skip
         out["clips"][name] = row
         paths |= {f"{name}/{key}": value for key, value in clip_paths.items()}
         stages = [(key, row[key]) for key in ("given", "searched", "polished") if key in row]
@@ -596,7 +617,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         stages += [(f"around it at caps {t['force_cap']:g}:{t['torque_cap']:g}", t.get("polished", t["searched"]))
                    for t in row.get("then_search", [])]  # fmt: skip
         stages += [(f"with the couple at weight {t['weight']:g}", t) for t in row.get("then_couple", [])]
-        stages += [("without it", row["unassisted"])] if "unassisted" in row else []
+        stages += [(f"without help, polish {j + 1}", t) for j, t in enumerate(row.get("unassisted_rounds", []))]
         figures = ", ".join(f"{j['mpjpe_g']:.1f} mm {label}" + ("" if j["fell_at"] is None else f" (fell at step "
                             f"{j['fell_at']})") for label, j in stages)  # fmt: skip
         torque = row.get("torque_body_weight_metres")

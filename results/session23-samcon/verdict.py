@@ -1,11 +1,12 @@
 """Per bundled clip, SAMCON's best open-loop tracking so far: without root forces, and with a root force of at most
-0.5 body weights (``python -m samcon.assist``), from the stored result files of sessions 16-24.
+0.5 body weights (``python -m samcon.assist``), from the stored result files of sessions 16-25.
 
     python results/session23-samcon/verdict.py [--feasibility results/session23-samcon/feasibility.json]
 
 Counted: ``track-samcon`` ``results.json`` copies (the open-loop row) and ``samcon.assist`` JSON files (the searched,
-polished, ``--then-caps`` and ``--then-search`` rows, each at its own caps, of the default law: a PD pull, no
-residual fed forward; a ``--then-search`` stage at caps 0:0 is an unassisted path and counts as one), on
+polished, ``--then-caps``, ``--then-search`` and ``--then-couple`` rows, each at its own caps, of the default law: a
+PD pull, no residual fed forward; a ``--then-search`` stage at caps 0:0 and the path ``--then-couple`` polishes last
+are unassisted paths and count as such), on
 the default references (session 16's reference fixes on; session 22's bridged references and the 64-frame probes
 left out), over the evaluator's whole open-loop horizon (512 frames, or to a one-shot clip's end) and without a fall.
 Force caps above 0.5, a root torque and stronger servos (``gym.physics.torque_scale``; all session 23) go to the last
@@ -65,9 +66,15 @@ def records(root: Path, full: dict[str, int]) -> dict[str, list[dict]]:
                 # (--start-path) counts that run's minutes too.
                 judged += [(t[k], t["force_cap"], t["torque_cap"], "then_search") for t in row.get("then_search", [])
                            for k in ("searched", "polished") if k in t]  # fmt: skip
+                # --then-couple stages (session 25): the couple held, counted at its largest value as a torque cap;
+                # the path polished without it after them is unassisted.
+                judged += [(t, 0.0, t["torque_body_weight_metres"]["max"], "then_couple")
+                           for t in row.get("then_couple", [])]  # fmt: skip
+                judged += [(row["unassisted"], 0.0, 0.0, "unassisted")] if "unassisted" in row else []
                 if data.get("start_path") and base["min_per_s"] is not None:
-                    source = json.loads(path.with_name(Path(data["start_path"].rpartition(":")[0]).stem + ".json")
-                                        .read_text())["clips"][name]  # fmt: skip
+                    given = Path(data["start_path"].rpartition(":")[0]).with_suffix(".json")
+                    given = ROOT / given if (ROOT / given).is_file() else path.with_name(given.name)
+                    source = json.loads(given.read_text())["clips"][name]
                     base["min_per_s"] += source["minutes_per_motion_second"]
                 for j, cap, torque, stage in judged:
                     if j["fell_at"] is None:

@@ -211,6 +211,16 @@ def test_command_takes_the_couple_away_inside_the_polish(tmp_path: Path) -> None
         assert judge(humanoid, states, ref, ev)["mpjpe_g"] == stage["mpjpe_g"]
     got = judge(humanoid, replay(humanoid, start, saved["walk/unassisted"]), ref, ev)
     assert got["mpjpe_g"] == row["unassisted"]["mpjpe_g"] and got["fell_at"] == row["unassisted"]["fell_at"]
+    # --polish-again from that saved unassisted path: judged as it was, then polished once more without help.
+    again, again_paths = tmp_path / "again.json", tmp_path / "again.npz"
+    main(["--config", "configs/samcon/debug.yaml", "--motions", "walk", "--set", "polish.search=false", "--cap", "0",
+          "--torque-cap", "0", "--start-path", f"{paths}:unassisted", "--polish-again", "1", "--out", str(again),
+          "--paths", str(again_paths)])  # fmt: skip
+    row2 = json.loads(again.read_text())["clips"]["walk"]
+    assert row2["given"] == {k: row["unassisted"][k] for k in ("mpjpe_g", "mpjpe_l", "fell_at")}
+    assert len(row2["unassisted_rounds"]) == 1 and "then_couple" not in row2
+    got = judge(humanoid, replay(humanoid, start, np.load(again_paths)["walk/unassisted"]), ref, ev)
+    assert got["mpjpe_g"] == row2["unassisted"]["mpjpe_g"]
 
 
 @pytest.mark.parametrize(
@@ -222,7 +232,8 @@ def test_command_takes_the_couple_away_inside_the_polish(tmp_path: Path) -> None
      (["--then-search", "0:0", "--then-sigma", "0"], "--then-sigma"),
      (["--start-path", "a.npz:polished"], "--start-path needs --then-search"),
      (["--cap", "0", "--then-couple", "0"], "weights > 0"), (["--cap", "0.5", "--then-couple", "1e-3"], "force cap"),
-     (["--cap", "0", "--then-search", "0.1:0", "--then-couple", "1e-3"], "force cap")],
+     (["--cap", "0", "--then-search", "0.1:0", "--then-couple", "1e-3"], "force cap"),
+     (["--cap", "0", "--torque-cap", "0.1", "--polish-again", "1"], "--polish-again polishes an unassisted path")],
 )  # fmt: skip
 def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as exit_info:

@@ -1,0 +1,46 @@
+"""The stages of session 25's runs (``samcon.assist`` with ``--then-search``, ``--then-couple`` or
+``--polish-again``), one line each: the caps (or the couple's weight and its mean in body-weight metres), the searched
+and the polished MPJPE-g (mm, open loop from the clip's start; "fell N": the evaluator's failure step; "polish
+dropped": no polish pass made the path cheaper, the one it started from stays).
+
+    python results/session25-samcon/table.py results/session25-samcon/*.json
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+
+def fig(j: dict | None) -> str:
+    if j is None:
+        return "-"
+    out = f"{j['mpjpe_g']:.1f}" + ("" if j["fell_at"] is None else f" (fell {j['fell_at']})")
+    return out + (" (polish dropped)" if j.get("kept") is False else "")
+
+
+def main(files: list[str]) -> None:
+    print("| file | clip | stage | force cap | torque cap / couple weight (mean couple) | searched | polished |")
+    print("|---|---|---|---|---|---|---|")
+    for file in files:
+        data = json.loads(Path(file).read_text())
+        if "assist" not in data:
+            continue
+        law = data["assist"]
+        for name, row in data["clips"].items():
+            first = "given" if "given" in row else "search + polish"
+            print(f"| `{Path(file).name}` | {name} | {first} | {law['cap']:g} | {law['torque_cap']:g} | "
+                  f"{fig(row.get('searched', row.get('given')))} | {fig(row.get('polished'))} |")
+            for i, t in enumerate(row.get("then_search", [])):
+                print(f"| | | around it, {i + 1} | {t['force_cap']:g} | {t['torque_cap']:g} | {fig(t['searched'])} | "
+                      f"{fig(t.get('polished'))} |")
+            for t in row.get("then_couple", []):
+                print(f"| | | couple as a control | 0 | {t['weight']:g} "
+                      f"({t['torque_body_weight_metres']['mean']:.3f}) | - | {fig(t)} |")
+            for j, t in enumerate(row.get("unassisted_rounds", [])):
+                print(f"| | | without help, polish {j + 1} | 0 | 0 | - | {fig(t)} |")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
