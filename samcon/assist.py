@@ -51,7 +51,7 @@ import argparse
 import json
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 from typing import Any
@@ -297,8 +297,9 @@ def _forces(forces: np.ndarray, weight: float, torque: bool, start: np.ndarray, 
 def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
                    log: Any, then_caps: Sequence[float] = (), then_search: Sequence[tuple[float, float]] = (),
                    then_sigma: float = 0.1, start_path: np.ndarray | None = None,
-                   then_couple: Sequence[float] = (),
-                   again: int = 0) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
+                   then_couple: Sequence[float] = (), again: int = 0,
+                   save: Callable[[dict[str, np.ndarray]], None] = lambda paths: None,
+                   ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
     """One clip: the search of ``cfg`` (and its polish when on) with the root force of ``acfg``, judged open loop
     from the clip's start with the force replayed. The draws are ``track-samcon``'s (its seed and the clip's name).
 
@@ -320,6 +321,9 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
     judged with the couple held), then the path without it (``row["unassisted"]``); see the module docstring.
     ``again``: then polish the last, unassisted path that many more times (``row["unassisted"]`` the last, each
     round's figures in ``row["unassisted_rounds"]``).
+
+    ``save`` is called with the paths so far after every stage (``--paths`` writes them then, so that a run stopped
+    midway keeps its finished stages).
 
     Returns:
         The row of figures, and the paths: ``start_state`` and the targets of every stage (``searched``,
@@ -343,7 +347,7 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         row |= _forces(forces, weight, torque, first, states)
         paths = {"start_state": first, "given": np.asarray(start_path, dtype=float)}
         return _search_around(cfg, acfg, humanoid, library, clip, log, row, paths, paths["given"], 0, 0.0,
-                              then_search, then_sigma, rng, common, then_couple, again)  # fmt: skip
+                              then_search, then_sigma, rng, common, then_couple, again, save)  # fmt: skip
     traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng,
                   assist=partial(RootAssist, humanoid, cfg=acfg), **common)  # fmt: skip
     paths = {"start_state": traj.start_state, "searched": traj.targets}
@@ -359,6 +363,7 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
             row["polished"] = judged
             row |= _forces(forces, weight, torque, traj.start_state, states)
             paths["polished"] = traj.targets
+            save(paths)
             continue
         row.setdefault("then", []).append(judged | {"cap": cap} | _forces(forces, weight, torque, traj.start_state,
                                                                           states))  # fmt: skip
@@ -366,15 +371,16 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         print(f"{name}: polished again with cap {cap:g}: MPJPE-g {judged['mpjpe_g']:.1f} mm{fell}", file=log,
               flush=True)  # fmt: skip
     return _search_around(cfg, acfg, humanoid, library, clip, log, row, paths, traj.targets, traj.samples,
-                          traj.seconds, then_search, then_sigma, rng, common, then_couple, again)  # fmt: skip
+                          traj.seconds, then_search, then_sigma, rng, common, then_couple, again, save)  # fmt: skip
 
 
 def _search_around(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
                    log: Any, row: dict[str, Any], paths: dict[str, np.ndarray], centre: np.ndarray, samples: int,
                    seconds: float, then_search: Sequence[tuple[float, float]], then_sigma: float,
                    rng: np.random.Generator, common: dict[str, Any],
-                   then_couple: Sequence[float] = (),
-                   again: int = 0) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
+                   then_couple: Sequence[float] = (), again: int = 0,
+                   save: Callable[[dict[str, np.ndarray]], None] = lambda paths: None,
+                   ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:  # fmt: skip
     """:func:`track_assisted`'s ``then_search``, ``then_couple`` and ``again`` stages from the path ``centre`` (under
     ``acfg``'s law), adding to its row and paths."""
     name, frames = library.names[clip], horizon(library, clip, cfg.train.max_frames)
@@ -402,13 +408,15 @@ def _search_around(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         result |= _forces(forces, weight, torque_cap > 0.0, traj.start_state, states)
         row.setdefault("then_search", []).append(result)
         paths[f"then_search_{i}"] = centre = traj.targets
+        save(paths)
         last = result.get("polished", result["searched"])
         fell = "" if last["fell_at"] is None else f", fell at step {last['fell_at']}"
         print(f"{name}: searched around the last path with force cap {force_cap:g}, torque cap {torque_cap:g}: "
               f"MPJPE-g {result['searched']['mpjpe_g']:.1f} mm searched, {last['mpjpe_g']:.1f} mm last{fell}",
               file=log, flush=True)  # fmt: skip
     if then_couple or again:
-        seconds += _couple_away(cfg, stage, humanoid, library, clip, log, row, paths, centre, then_couple, again)
+        seconds += _couple_away(cfg, stage, humanoid, library, clip, log, row, paths, centre, then_couple, again,
+                                save)  # fmt: skip
     row |= {"samples": samples, "minutes": seconds / 60.0,
             "minutes_per_motion_second": seconds / 60.0 / (frames * library.dt)}  # fmt: skip
     return row, paths
@@ -416,7 +424,8 @@ def _search_around(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
 
 def _couple_away(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
                  log: Any, row: dict[str, Any], paths: dict[str, np.ndarray], targets: np.ndarray,
-                 weights: Sequence[float], again: int = 0) -> float:  # fmt: skip
+                 weights: Sequence[float], again: int = 0,
+                 save: Callable[[dict[str, np.ndarray]], None] = lambda paths: None) -> float:  # fmt: skip
     """:func:`track_assisted`'s ``then_couple`` stages from ``targets`` under ``acfg``'s law, adding to its row and
     paths (``then_couple_<i>`` and its ``then_couple_<i>_couple`` (F, 3) in N m, ``unassisted``), then with
     ``weights`` the path polished without the couple, and ``again`` more polishes of it. Returns the polishes'
@@ -446,6 +455,7 @@ def _couple_away(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, libr
                                           "max": float(norm.max())}}  # fmt: skip
         row.setdefault("then_couple", []).append(judged)
         paths[f"then_couple_{i}"], paths[f"then_couple_{i}_couple"] = targets, values
+        save(paths)
         print(f"{name}: polished with the couple as a control at weight {w:g}: MPJPE-g {judged['mpjpe_g']:.1f} mm, "
               f"couple mean {norm.mean():.3f} body-weight metres", file=log, flush=True)  # fmt: skip
     for j in range((1 if weights else 0) + again):
@@ -456,6 +466,7 @@ def _couple_away(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, libr
         row["unassisted"] = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(summary["kept"])}
         row.setdefault("unassisted_rounds", []).append(row["unassisted"])
         paths["unassisted"] = targets
+        save(paths)
         print(f"{name}: without help, polished (round {j + 1}): MPJPE-g {row['unassisted']['mpjpe_g']:.1f} mm",
               file=log, flush=True)  # fmt: skip
     return seconds
@@ -541,7 +552,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "(e.g. runs/a.npz:then_search_0), judged first with --cap and --torque-cap")  # fmt: skip
     parser.add_argument("--paths", default=None, metavar="FILE.npz",
                         help="also write every clip's start state and each stage's PD targets there (atomically, "
-                             "after every clip; arrays <clip>/start_state, <clip>/searched, <clip>/polished, "
+                             "after every stage; arrays <clip>/start_state, <clip>/searched, <clip>/polished, "
                              "<clip>/then_search_<i>)")  # fmt: skip
     parser.add_argument("--step", type=int, default=None, metavar="H",
                         help="differencing step of the residual in control steps (default: per clip, its source "
@@ -604,12 +615,19 @@ def main(argv: Sequence[str] | None = None) -> None:
                            "start_path": args.start_path}  # fmt: skip
     paths: dict[str, np.ndarray] = {}
     t0 = time.perf_counter()
+
+    def write_paths(got: dict[str, np.ndarray]) -> None:
+        if args.paths is not None:
+            with atomic_output(args.paths) as tmp, open(tmp, "wb") as f:
+                np.savez(f, **got)
+
     for c, name in enumerate(library.names):
         step = acfg.step or accel_step(1.0 / clips[c].source_fps, library.dt)
-        row, clip_paths = track_assisted(cfg, replace(acfg, step=step), humanoid, library, c, sys.stdout,
-                                         args.then_caps, then_search, args.then_sigma,
-                                         None if given is None else given[name], args.then_couple,
-                                         args.polish_again)  # fmt: skip
+        row, clip_paths = track_assisted(
+            cfg, replace(acfg, step=step), humanoid, library, c, sys.stdout, args.then_caps, then_search,
+            args.then_sigma, None if given is None else given[name], args.then_couple, args.polish_again,
+            lambda so_far, name=name, done=paths: write_paths(done | {f"{name}/{k}": v for k, v in so_far.items()}),
+        )  # fmt: skip
         out["clips"][name] = row
         paths |= {f"{name}/{key}": value for key, value in clip_paths.items()}
         stages = [(key, row[key]) for key in ("given", "searched", "polished") if key in row]
@@ -628,9 +646,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             out["seconds"] = time.perf_counter() - t0
             with atomic_output(args.out) as tmp:
                 tmp.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
-        if args.paths is not None:
-            with atomic_output(args.paths) as tmp, open(tmp, "wb") as f:
-                np.savez(f, **paths)
+        write_paths(paths)
     if args.out is not None:
         print(f"written: {args.out}")
 

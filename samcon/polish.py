@@ -166,6 +166,29 @@ class BodyCost:
         return grad, hess
 
 
+def couple_columns(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, forces: np.ndarray,
+                   steps: int | None = None) -> np.ndarray:  # fmt: skip
+    """d(next state's tangent coordinates) / d(couple) of each step, one column per rotational dof of the root: the
+    columns a :class:`Couple` adds to B (central differences of the step, ``samcon.lqr``'s ``_force_response``).
+
+    Args:
+        states: Full states of the path. Shape: (F + 1, nstate).
+        targets: Its targets. Shape: (F, nu).
+        forces: The generalised force held over each step (the couple's). Shape: (F, nv).
+        steps: Only the first ``steps`` steps (the rest stay 0; None: all).
+
+    Returns:
+        Shape: (F, 2 nv, 3), per N m.
+    """
+    m = humanoid.model
+    scratch = mujoco.MjData(m)
+    out = np.zeros((len(targets), 2 * m.nv, 3))
+    for t in range(len(targets) if steps is None else min(steps, len(targets))):
+        for j, dof in enumerate(range(m.nv)[ROOT_TURN]):
+            out[t, :, j] = _force_response(humanoid, scratch, states[t], targets[t], forces[t], dof)
+    return out
+
+
 def backward_pass(a: np.ndarray, b: np.ndarray, lx: np.ndarray, lxx: np.ndarray, lu: np.ndarray, luu: float,
                   mu: float, free: int | None = None) -> Step | None:  # fmt: skip
     """iLQR's backward pass for ``x_{t+1} = A_t x_t + B_t u_t``, cost ``sum_t l_u(u_t) + l_x(x_{t+1})``.
@@ -426,16 +449,12 @@ def _ilqr_couple(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets:
     weights = np.concatenate([np.full(nu, cfg.control), np.full(3, couple.weight)])
     unit = np.concatenate([np.ones(nu), np.full(3, COUPLE_UNIT)])  # controls in the backward pass's units: u / unit
     reference = np.concatenate([cost.ref_targets[window], np.zeros((frames, 3))], axis=1)
-    scratch = mujoco.MjData(m)
     for it in range(1, cfg.iterations + 1):
         values[window] = controls[:, nu:]
         held = replace(couple, values=values).law(nv)
         a, b = linearise(humanoid, states, controls[:, :nu], cfg.eps, held, first)
-        turn = np.zeros((frames, 2 * nv, 3))
-        for t in range(min(free, frames)):  # the later steps' controls do not change: their columns are not used
-            for j, dof in enumerate(range(nv)[ROOT_TURN]):
-                turn[t, :, j] = _force_response(humanoid, scratch, states[t], controls[t, :nu], held.forces[first + t],
-                                                dof)  # fmt: skip
+        # the later steps' controls do not change: their columns are not used
+        turn = couple_columns(humanoid, states, controls[:, :nu], held.forces[window], free)
         b = np.concatenate([b, turn], axis=2) * unit
         derivs = [cost.state_derivatives(states[t + 1], first + t + 1) for t in range(frames)]
         lx, lxx = np.stack([g for g, _ in derivs]), np.stack([h for _, h in derivs])
@@ -514,6 +533,11 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
         before = replayed(targets, best_values)
         best, after, windows, passes = targets, before, [], []
         for p in range(cfg.passes):
+            if p and not passes[-1]["kept"] and searcher is None and cfg.for_pass(p) == cfg.for_pass(p - 1):
+                # From the same path with the same settings the pass would do what the dropped one did, bit for bit.
+                passes.append({"cost": passes[-1]["cost"], "fell_at": passes[-1]["fell_at"], "kept": False,
+                               "repeat_skipped": True})  # fmt: skip
+                continue
             held = None if couple is None else replace(couple, values=best_values)
             new, pass_windows, values = _sweep(humanoid, cost, start, best, cfg.for_pass(p), lqr, searcher,
                                                f"{name} pass {p + 1}", log, t0, law, held)  # fmt: skip
@@ -575,11 +599,16 @@ def _sweep(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nd
     firsts = list(range(0, max(1, frames - window + stride), stride))
     windows = []
     searched, track = states.copy(), None
+    nu = humanoid.model.nu
     if lqr is not None and cfg.window:
         a, b = linearise(humanoid, searched, targets, lqr.eps, law)
+        r = lqr.control * np.eye(nu)
+        if couple is not None:  # the couple is a control of the path's LQR too, 100 N m priced as a target radian
+            b = np.concatenate([b, couple_columns(humanoid, searched, targets, law.forces)], axis=2)
+            r = np.diag(np.concatenate([np.full(nu, lqr.control), np.full(3, lqr.control / COUPLE_UNIT**2)]))
         q = np.diag(state_weights(humanoid, lqr))
         try:  # a path that went through a blow-up (an earlier cap's path under a smaller one) has no usable LQR
-            track = riccati(a, b, q, lqr.control * np.eye(humanoid.model.nu), q)[0]
+            track = riccati(a, b, q, r, q)[0]
         except np.linalg.LinAlgError:
             track = None
         if track is not None and not np.isfinite(track).all():
@@ -587,7 +616,7 @@ def _sweep(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nd
         if track is None and log is not None:
             print(f"{name}: the path's LQR is singular or not finite; new frames start from its targets alone",
                   file=log, flush=True)  # fmt: skip
-    follow = None if track is None else Follow(searched, targets, track, lqr.limit)
+    follow = None if track is None or couple is not None else Follow(searched, targets, track, lqr.limit)
     changed = 0  # frames before this one have been a window's to change
     played = 0  # frames before this one have been played in a window's cost
     for j, s in enumerate(firsts):
@@ -600,10 +629,16 @@ def _sweep(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nd
         elif track is not None and tail > changed:
             gain = np.zeros((tail - s, *track.shape[1:]))
             gain[max(0, changed - s) :] = track[max(s, changed) : tail]
-            base = np.where((np.arange(s, tail) >= changed)[:, None], targets[s:tail], new[s:tail])
-            _, applied, blown = forward_pass(humanoid, states[s], searched[s : tail + 1], base, np.zeros_like(base),
-                                             gain, np.zeros(1), lqr.limit, law, s)  # fmt: skip
-            init = init if blown[0] else applied[0]
+            unchanged = (np.arange(s, tail) >= changed)[:, None]
+            base = np.where(unchanged, targets[s:tail], new[s:tail])
+            turn = None if couple is None else np.where(unchanged, couple.values[s:tail], values[s:tail])
+            _, applied, blown = forward_pass(humanoid, states[s], searched[s : tail + 1], base,
+                                             np.zeros(gain.shape[:2]), gain, np.zeros(1), lqr.limit,
+                                             None if couple is not None else law, s, turn)  # fmt: skip
+            if not blown[0]:
+                init = applied[0, :, :nu]
+                if couple is not None:  # the couple the LQR gave these frames is where the window's iLQR starts
+                    values[s:tail] = applied[0, :, nu:]
         label = f"{name} frames {s}-{e}"
         if couple is None:
             got, got_states, hist = _ilqr(humanoid, cost, states[s], init, s, cfg, label, log, free=e - s, law=law,

@@ -223,6 +223,29 @@ def test_command_takes_the_couple_away_inside_the_polish(tmp_path: Path) -> None
     assert got["mpjpe_g"] == row2["unassisted"]["mpjpe_g"]
 
 
+def test_paths_are_written_after_every_stage(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run stopped in its last stage (here the polish without the couple raises) keeps the stages before it in
+    --paths: the searched, polished and couple stages."""
+    import samcon.assist as A
+
+    calls = []
+
+    def polish_then_stop(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("stopped")
+        return A.polish.__wrapped__(*args, **kwargs)
+
+    polish_then_stop.__wrapped__ = A.polish
+    monkeypatch.setattr(A, "polish", polish_then_stop)
+    paths = tmp_path / "paths.npz"
+    with pytest.raises(RuntimeError, match="stopped"):
+        main(["--config", "configs/samcon/debug.yaml", "--motions", "walk", "--set", "polish.search=false",
+              "--cap", "0", "--torque-cap", "0.2", "--then-couple", "1e-4", "--paths", str(paths)])  # fmt: skip
+    assert set(np.load(paths).files) == {f"walk/{k}" for k in ("start_state", "searched", "polished", "then_couple_0",
+                                                               "then_couple_0_couple")}  # fmt: skip
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [(["--motions", "nosuchclip"], "nosuchclip"), (["--cap", "-1"], "cap"), (["--set", "search.bogus=1"], "bogus"),

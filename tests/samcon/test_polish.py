@@ -144,12 +144,14 @@ def test_polish_lowers_the_cost_and_replays(walk, pushed: bool, follow: bool) ->
     assert (plain.total == replayed.total) == (not pushed)  # the forces were applied, not ignored
 
 
-@pytest.mark.parametrize("weight", [1e-6, 1.0])
-def test_a_couple_polished_as_a_control_replays_and_a_dear_one_is_taken_away(walk, weight: float) -> None:
+@pytest.mark.parametrize("weight, tracked", [(1e-6, False), (1.0, False), (1e-6, True), (1.0, True)])
+def test_a_couple_polished_as_a_control_replays_and_a_dear_one_is_taken_away(walk, weight: float,
+                                                                             tracked: bool) -> None:  # fmt: skip
     """From walk's own targets with a yaw couple of 20 N m on the root (a push it does not have), the polish with
     the couple as three more controls: the targets and couple it returns replay (the couple held) to the cost it
     reports; cheap (1e-6 per (N m)^2), the couple is what it turns to undo the push (the body error falls, the yaw
-    couple shrinks); dear (1 per (N m)^2, 400 a frame at the start), it is taken away."""
+    couple shrinks); dear (1 per (N m)^2, 400 a frame at the start), it is taken away. ``tracked``: the frames no
+    window has changed yet start from the path's LQR, the couple one of its controls."""
     humanoid, library = walk
     frames = 24
     ref = reference_frames(library, 0, frames)
@@ -157,7 +159,8 @@ def test_a_couple_polished_as_a_control_replays_and_a_dear_one_is_taken_away(wal
     start = start_state(library, humanoid, 0)
     push = Couple(np.tile([0.0, 0.0, 20.0], (frames, 1)), weight)
     cfg = PolishConfig(iterations=4, window=16, stride=8, lookahead=4, whole_iterations=2)
-    targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, couple=push)
+    targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, couple=push,
+                              lqr=LqrConfig() if tracked else None)  # fmt: skip
     values = summary["couple"]
     assert summary["kept"] and summary["cost_after"] < summary["cost_before"] and values.shape == (frames, 3)
     cost = BodyCost(humanoid, cfg, ref, ref_targets, 0.25)
@@ -174,6 +177,27 @@ def test_a_couple_polished_as_a_control_replays_and_a_dear_one_is_taken_away(wal
         assert np.abs(values[:, 2]).mean() < 8.0  # most of the push undone (4 N m left on average)
     else:
         assert np.sum(values**2) < 0.01 * np.sum(push.values**2)
+
+
+def test_a_pass_that_would_repeat_a_dropped_one_is_skipped(walk, monkeypatch) -> None:
+    """Two more passes with the same settings after a dropped one would start from the same path and do the same:
+    they are skipped, not run."""
+    import samcon.polish as P
+
+    humanoid, library = walk
+    ref = reference_frames(library, 0, 8)
+    ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
+    calls = []
+
+    def worse(humanoid, cost, start, targets, *args, **kwargs):  # a pass that ends dearer than it started
+        calls.append(1)
+        return targets + 0.3, [], None
+
+    monkeypatch.setattr(P, "_sweep", worse)
+    targets, summary = polish(humanoid, start_state(library, humanoid, 0), ref_targets, ref, ref_targets,
+                              PolishConfig(iterations=1, window=4, stride=2, passes=3), 0.25)  # fmt: skip
+    assert len(calls) == 1 and targets is ref_targets and not summary["kept"]
+    assert [p.get("repeat_skipped", False) for p in summary["passes"]] == [False, True, True]
 
 
 def test_a_couple_as_a_control_refuses_what_it_cannot_combine_with(walk) -> None:
