@@ -320,7 +320,8 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
     force: its caps' force cap 0) is polished as a control with each weight in turn (``row["then_couple"]``,
     judged with the couple held), then the path without it (``row["unassisted"]``); see the module docstring.
     ``again``: then polish the last, unassisted path that many more times (``row["unassisted"]`` the last, each
-    round's figures in ``row["unassisted_rounds"]``).
+    round's figures in ``row["unassisted_rounds"]``), stopping at a round the polish dropped (the next would repeat
+    it).
 
     ``save`` is called with the paths so far after every stage (``--paths`` writes them then, so that a run stopped
     midway keeps its finished stages).
@@ -469,6 +470,8 @@ def _couple_away(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, libr
         save(paths)
         print(f"{name}: without help, polished (round {j + 1}): MPJPE-g {row['unassisted']['mpjpe_g']:.1f} mm",
               file=log, flush=True)  # fmt: skip
+        if not summary["kept"]:  # the polish is deterministic: from the same path a next round does the same
+            break
     return seconds
 
 
