@@ -394,29 +394,48 @@ def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nda
             roll, applied, blown = window_rollout(humanoid, start, states, targets, k, gain, alphas, first, free,
                                                   follow, law)  # fmt: skip
             trials = [cost.path_cost(roll[i], applied[i], first) for i in range(len(alphas))]
-            ok = [i for i, c in enumerate(trials)
-                  if not blown[i] and np.isfinite(c.total) and (c.fell_at < 0 or current.fell_at >= 0)]  # fmt: skip
-            best = min(ok, key=lambda i: trials[i].total) if ok else None
             if cfg.verbose and log is not None:
                 print(f"  mu {mu:.3g} expected {d1 + d2:.4g} trials " + " ".join(
                     f"{c.total:.4g}{'b' if blown[i] else ''}{'f' if c.fell_at >= 0 else ''}"
                     for i, c in enumerate(trials)), file=log, flush=True)  # fmt: skip
-            if best is not None and trials[best].total < current.total:
+            best = _cheaper(trials, blown, current)
+            if best is not None:
                 states, targets, current = roll[best], applied[best], trials[best]
-                accepted = True
-                mu = max(cfg.mu_min, mu / cfg.mu_factor)
-                history.append({"iteration": it, "cost": current.total, "alpha": float(alphas[best]),
-                                "expected": float(alphas[best] * d1 + alphas[best] ** 2 * d2), "mu": mu})  # fmt: skip
+                accepted, mu = True, _accepted(cfg, history, it, current, float(alphas[best]), d1, d2, mu)
             else:
                 mu *= cfg.mu_factor
-        if cfg.verbose and log is not None:
-            print(f"{label} iteration {it}: cost {current.total:.4g}{'' if accepted else ' (no step improved)'} "
-                  f"{time.perf_counter() - t0:.0f} s", file=log, flush=True)  # fmt: skip
-        if not accepted:
-            break
-        if len(history) > 2 and history[-2]["cost"] - current.total < cfg.tolerance * history[-2]["cost"]:
+        if _stop(cfg, history, current, accepted, label, it, t0, log):
             break
     return targets, states, history
+
+
+def _cheaper(trials: list[PathCost], blown: np.ndarray, current: PathCost) -> int | None:
+    """The cheapest rollout that did not blow up, is finite, does not fall where ``current`` did not, and is cheaper
+    than ``current``; None if there is none."""
+    ok = [i for i, c in enumerate(trials)
+          if not blown[i] and np.isfinite(c.total) and (c.fell_at < 0 or current.fell_at >= 0)]  # fmt: skip
+    best = min(ok, key=lambda i: trials[i].total) if ok else None
+    return best if best is not None and trials[best].total < current.total else None
+
+
+def _accepted(cfg: PolishConfig, history: list[dict[str, Any]], it: int, current: PathCost, alpha: float, d1: float,
+              d2: float, mu: float) -> float:  # fmt: skip
+    """Records an accepted step in ``history``; returns the lowered regularisation."""
+    mu = max(cfg.mu_min, mu / cfg.mu_factor)
+    history.append({"iteration": it, "cost": current.total, "alpha": alpha, "expected": alpha * d1 + alpha**2 * d2,
+                    "mu": mu})  # fmt: skip
+    return mu
+
+
+def _stop(cfg: PolishConfig, history: list[dict[str, Any]], current: PathCost, accepted: bool, label: str, it: int,
+          t0: float, log: TextIO | None) -> bool:  # fmt: skip
+    """After an iteration: logs it (verbose) and says whether the iLQR stops (no step, or too small a gain)."""
+    if cfg.verbose and log is not None:
+        print(f"{label} iteration {it}: cost {current.total:.4g}{'' if accepted else ' (no step improved)'} "
+              f"{time.perf_counter() - t0:.0f} s", file=log, flush=True)  # fmt: skip
+    if not accepted:
+        return True
+    return len(history) > 2 and history[-2]["cost"] - current.total < cfg.tolerance * history[-2]["cost"]
 
 
 def _ilqr_couple(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.ndarray, first: int,
@@ -470,23 +489,13 @@ def _ilqr_couple(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets:
             roll, applied, blown = forward_pass(humanoid, start, states, controls[:, :nu], k, gain, alphas,
                                                 first=first, couple=controls[:, nu:])  # fmt: skip
             trials = [total(roll[i], applied[i]) for i in range(len(alphas))]
-            ok = [i for i, c in enumerate(trials)
-                  if not blown[i] and np.isfinite(c.total) and (c.fell_at < 0 or current.fell_at >= 0)]  # fmt: skip
-            best = min(ok, key=lambda i: trials[i].total) if ok else None
-            if best is not None and trials[best].total < current.total:
+            best = _cheaper(trials, blown, current)
+            if best is not None:
                 states, controls, current = roll[best], applied[best], trials[best]
-                accepted = True
-                mu = max(cfg.mu_min, mu / cfg.mu_factor)
-                history.append({"iteration": it, "cost": current.total, "alpha": float(alphas[best]),
-                                "expected": float(alphas[best] * d1 + alphas[best] ** 2 * d2), "mu": mu})  # fmt: skip
+                accepted, mu = True, _accepted(cfg, history, it, current, float(alphas[best]), d1, d2, mu)
             else:
                 mu *= cfg.mu_factor
-        if cfg.verbose and log is not None:
-            print(f"{label} iteration {it}: cost {current.total:.4g}{'' if accepted else ' (no step improved)'} "
-                  f"{time.perf_counter() - t0:.0f} s", file=log, flush=True)  # fmt: skip
-        if not accepted:
-            break
-        if len(history) > 2 and history[-2]["cost"] - current.total < cfg.tolerance * history[-2]["cost"]:
+        if _stop(cfg, history, current, accepted, label, it, t0, log):
             break
     return controls, states, history
 

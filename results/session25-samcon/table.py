@@ -8,16 +8,16 @@ dropped": no polish pass made the path cheaper, the one it started from stays).
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import sys
 from pathlib import Path
 
-
-def fig(j: dict | None) -> str:
-    if j is None:
-        return "-"
-    out = f"{j['mpjpe_g']:.1f}" + ("" if j["fell_at"] is None else f" (fell {j['fell_at']})")
-    return out + (" (polish dropped)" if j.get("kept") is False else "")
+# fig() and the first lines of the table are session 24's (results/session24-samcon/table.py).
+_spec = importlib.util.spec_from_file_location("table24", Path(__file__).parents[1] / "session24-samcon" / "table.py")
+_table24 = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_table24)
+fig = _table24.fig
 
 
 def main(files: list[str]) -> None:
