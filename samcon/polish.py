@@ -317,15 +317,11 @@ class Follow:
 
 def window_rollout(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targets: np.ndarray, k: np.ndarray,
                    gain: np.ndarray, alphas: np.ndarray, first: int, free: int, follow: Follow | None,
-                   law: AssistLaw | None, couple: np.ndarray | None = None,
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+                   law: AssistLaw | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """:func:`forward_pass` of a window whose first ``free`` steps take ``targets + alpha k + K dx`` and whose
-    later ones (its look-ahead) hold ``targets`` (``follow`` None) or are played by ``follow`` (not with a
-    ``couple``)."""
+    later ones (its look-ahead) hold ``targets`` (``follow`` None) or are played by ``follow``."""
     if follow is None or free >= len(targets):
-        return forward_pass(humanoid, start, states, targets, k, gain, alphas, law=law, first=first, couple=couple)
-    if couple is not None:
-        raise ValueError("a root couple as a control cannot be polished with polish.follow")
+        return forward_pass(humanoid, start, states, targets, k, gain, alphas, law=law, first=first)
     frames = len(targets)
     later = slice(first + free, first + frames)
     states, targets, k, gain = states.copy(), targets.copy(), k.copy(), gain.copy()

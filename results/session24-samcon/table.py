@@ -19,19 +19,22 @@ def fig(j: dict | None) -> str:
     return out + (" (polish dropped)" if j.get("kept") is False else "")
 
 
+def search_rows(file: str, law: dict, name: str, row: dict) -> list[str]:
+    """A clip's first stage and its ``--then-search`` stages, one table line each."""
+    first = "given" if "given" in row else "search + polish"
+    lines = [f"| `{Path(file).name}` | {name} | {first} | {law['cap']:g} | {law['torque_cap']:g} | "
+             f"{fig(row.get('searched', row.get('given')))} | {fig(row.get('polished'))} |"]
+    return lines + [f"| | | around it, {i + 1} | {t['force_cap']:g} | {t['torque_cap']:g} | {fig(t['searched'])} | "
+                    f"{fig(t.get('polished'))} |" for i, t in enumerate(row.get("then_search", []))]
+
+
 def main(files: list[str]) -> None:
     print("| file | clip | stage | force cap | torque cap | searched | polished |")
     print("|---|---|---|---|---|---|---|")
     for file in files:
         data = json.loads(Path(file).read_text())
-        law = data["assist"]
         for name, row in data["clips"].items():
-            first = "given" if "given" in row else "search + polish"
-            print(f"| `{Path(file).name}` | {name} | {first} | {law['cap']:g} | {law['torque_cap']:g} | "
-                  f"{fig(row.get('searched', row.get('given')))} | {fig(row.get('polished'))} |")
-            for i, t in enumerate(row.get("then_search", [])):
-                print(f"| | | around it, {i + 1} | {t['force_cap']:g} | {t['torque_cap']:g} | {fig(t['searched'])} | "
-                      f"{fig(t.get('polished'))} |")
+            print("\n".join(search_rows(file, data["assist"], name, row)))
 
 
 if __name__ == "__main__":

@@ -13,11 +13,11 @@ import json
 import sys
 from pathlib import Path
 
-# fig() and the first lines of the table are session 24's (results/session24-samcon/table.py).
+# fig() and the first lines of a clip's rows are session 24's (results/session24-samcon/table.py).
 _spec = importlib.util.spec_from_file_location("table24", Path(__file__).parents[1] / "session24-samcon" / "table.py")
 _table24 = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_table24)
-fig = _table24.fig
+fig, search_rows = _table24.fig, _table24.search_rows
 
 
 def main(files: list[str]) -> None:
@@ -27,14 +27,8 @@ def main(files: list[str]) -> None:
         data = json.loads(Path(file).read_text())
         if "assist" not in data:
             continue
-        law = data["assist"]
         for name, row in data["clips"].items():
-            first = "given" if "given" in row else "search + polish"
-            print(f"| `{Path(file).name}` | {name} | {first} | {law['cap']:g} | {law['torque_cap']:g} | "
-                  f"{fig(row.get('searched', row.get('given')))} | {fig(row.get('polished'))} |")
-            for i, t in enumerate(row.get("then_search", [])):
-                print(f"| | | around it, {i + 1} | {t['force_cap']:g} | {t['torque_cap']:g} | {fig(t['searched'])} | "
-                      f"{fig(t.get('polished'))} |")
+            print("\n".join(search_rows(file, data["assist"], name, row)))
             for t in row.get("then_couple", []):
                 print(f"| | | couple as a control | 0 | {t['weight']:g} "
                       f"({t['torque_body_weight_metres']['mean']:.3f}) | - | {fig(t)} |")
