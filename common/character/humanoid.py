@@ -48,6 +48,18 @@ def mirror_name(name: str) -> str:
     if name.startswith("right_"):
         return "left_" + name[len("right_") :]
     return name
+def set_torsional_friction(m: mujoco.MjModel, coefficient: float) -> None:
+    """Gives every geom of the world body (the floor) ``condim`` 4 and the torsional friction ``coefficient`` (m), so
+    that each contact with it resists spinning about its normal up to ``coefficient`` times its normal force
+    (:class:`PhysicsConfig`'s ``torsional_friction``). MuJoCo reads both at every collision; a contact's ``condim`` and
+    friction are the larger of its two geoms'."""
+    floor = np.flatnonzero(m.geom_bodyid == 0)
+    if floor.size == 0:
+        raise ValueError("physics.torsional_friction: the model has no floor geom (a geom of the world body)")
+    m.geom_condim[floor] = np.maximum(m.geom_condim[floor], 4)
+    m.geom_friction[floor, 1] = coefficient
+
+
 HAND_BODIES = ("right_hand", "left_hand")
 # DeepMimic's EnableFallContact bodies: touching the ground with one of them is a fall.
 FALL_CONTACT_BODIES = ("pelvis", "torso", "head")
@@ -66,6 +78,12 @@ class PhysicsConfig:
             stiff PD servos chatter at the physics rate (see ``common/character/assets/humanoid3d.xml``).
         torque_scale: Multiplies every servo's torque limit (the actuators' ``forcerange``; the MJCF's, DeepMimic's,
             at 1). A study knob, not a tuning one: how strong the character must be to track a clip (session 23).
+        torsional_friction: 0 (the MJCF's contacts, ``condim`` 3): a contact resists sliding only, so the character
+            turns about the vertical by the sliding friction of separate contact points alone. Above 0: every floor
+            contact also resists spinning about its normal, up to this length (m) times its normal force (MuJoCo's
+            ``condim`` 4 and torsional friction coefficient, set on the floor geoms; a contact takes the larger of its
+            two geoms' values). A study knob like ``torque_scale`` (session 26): do the spins fail for the lack of it?
+            A foot's patch of radius r pressed evenly resists up to 2/3 mu r N (r = 4.5 cm: 0.03 m at mu = 1).
     """
 
     control_hz: float = 60.0
@@ -74,6 +92,7 @@ class PhysicsConfig:
     ls_iterations: int = 50
     armature: float | None = None
     torque_scale: float = 1.0
+    torsional_friction: float = 0.0
 
     def __post_init__(self) -> None:
         if self.control_hz <= 0:
@@ -84,6 +103,8 @@ class PhysicsConfig:
             raise ValueError(f"physics.armature must be >= 0 (kg m^2), got {self.armature}")
         if not self.torque_scale > 0:
             raise ValueError(f"physics.torque_scale must be > 0, got {self.torque_scale}")
+        if not self.torsional_friction >= 0:
+            raise ValueError(f"physics.torsional_friction must be >= 0 (m), got {self.torsional_friction}")
 
     @property
     def control_dt(self) -> float:
@@ -137,6 +158,8 @@ class Humanoid:
             m.dof_armature[m.jnt_dofadr[m.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]] = self.physics.armature
         if self.physics.torque_scale != 1.0:
             m.actuator_forcerange[:] *= self.physics.torque_scale
+        if self.physics.torsional_friction > 0.0:
+            set_torsional_friction(m, self.physics.torsional_friction)
         # Body 0 is MuJoCo's world body; the character's bodies follow in depth-first order.
         self.body_names: tuple[str, ...] = tuple(
             mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, i) for i in range(1, m.nbody)

@@ -1,5 +1,5 @@
 """Per bundled clip, SAMCON's best open-loop tracking so far: without root forces, and with a root force of at most
-0.5 body weights (``python -m samcon.assist``), from the stored result files of sessions 16-25.
+0.5 body weights (``python -m samcon.assist``), from the stored result files of sessions 16-26.
 
     python results/session23-samcon/verdict.py [--feasibility results/session23-samcon/feasibility.json]
 
@@ -9,8 +9,9 @@ PD pull, no residual fed forward; a ``--then-search`` stage at caps 0:0 and the 
 are unassisted paths and count as such), on
 the default references (session 16's reference fixes on; session 22's bridged references and the 64-frame probes
 left out), over the evaluator's whole open-loop horizon (512 frames, or to a one-shot clip's end) and without a fall.
-Force caps above 0.5, a root torque and stronger servos (``gym.physics.torque_scale``; all session 23) go to the last
-column, one cell per setting. Each cell is the lowest MPJPE-g of those, with its MPJPE-l, the one-core minutes per
+Force caps above 0.5, a root torque, stronger servos (``gym.physics.torque_scale``; all session 23) and floor contacts
+with torsional friction (``gym.physics.torsional_friction``, session 26) go to the last column, one cell per setting.
+Each cell is the lowest MPJPE-g of those, with its MPJPE-l, the one-core minutes per
 second of motion of that run (all its stages, and the run whose path a ``--start-path`` run began from) and its
 file. One draw each: the best of several draws and configs is a selection, so the figures are what SAMCON has
 reached, not what one run reaches.
@@ -38,6 +39,12 @@ CAP = 0.5
 EXCLUDE = re.compile(r"session22-samcon/(bridge-|seed\d|search-bridged|scratch/)")
 
 
+def _physics(data: dict, key: str, default: float) -> float:
+    """The run's last ``--set gym.physics.<key>=...`` override, or ``default``."""
+    given = [float(o.split("=")[1]) for o in data.get("overrides", []) if f"physics.{key}=" in o]
+    return given[-1] if given else default
+
+
 def records(root: Path, full: dict[str, int]) -> dict[str, list[dict]]:
     """Every counted result per clip: mpjpe_g, mpjpe_l, cap (0: no root force), min_per_s, file."""
     out: dict[str, list[dict]] = {name: [] for name in full}
@@ -52,9 +59,9 @@ def records(root: Path, full: dict[str, int]) -> dict[str, list[dict]]:
         for name, row in data["clips"].items():
             if name not in full or not isinstance(row, dict) or row.get("frames") != full[name]:
                 continue
-            strength = [float(o.split("=")[1]) for o in data.get("overrides", []) if "physics.torque_scale" in o]
             base = {"min_per_s": row.get("minutes_per_motion_second"), "file": rel, "torque": 0.0,
-                    "strength": strength[-1] if strength else 1.0}  # fmt: skip
+                    "strength": _physics(data, "torque_scale", 1.0),
+                    "torsion": _physics(data, "torsional_friction", 0.0)}  # fmt: skip
             if "assist" in data:
                 law = data["assist"]
                 if law["scale"] > 0.0 or law["kp"] == 0.0:  # the residual fed forward: another law, left out
@@ -89,14 +96,16 @@ def records(root: Path, full: dict[str, int]) -> dict[str, list[dict]]:
 
 def best(rows: list[dict], max_cap: float) -> dict | None:
     """The lowest MPJPE-g with a force of at most ``max_cap`` body weights and no root torque."""
-    within = [r for r in rows if r["cap"] <= max_cap and r["torque"] == 0.0 and r["strength"] == 1.0]
+    within = [r for r in rows if r["cap"] <= max_cap and r["torque"] == 0.0 and r["strength"] == 1.0
+              and r["torsion"] == 0.0]
     return min(within, key=lambda r: (r["mpjpe_g"], r["min_per_s"] or 0.0)) if within else None
 
 
 def label(r: dict) -> str:
-    """The setting of a "more" cell: force cap, torque cap, servo strength."""
+    """The setting of a "more" cell: force cap, torque cap, servo strength, torsional friction."""
     parts = [f"force cap {r['cap']:g}"] + ([f"torque cap {r['torque']:g}"] if r["torque"] else [])
-    return ", ".join(parts + ([f"servo limits x {r['strength']:g}"] if r["strength"] != 1.0 else []))
+    parts += [f"servo limits x {r['strength']:g}"] if r["strength"] != 1.0 else []
+    return ", ".join(parts + ([f"torsional friction {r['torsion']:g} m"] if r["torsion"] else []))
 
 
 def cell(r: dict | None) -> str:
@@ -131,8 +140,8 @@ def main(argv: list[str] | None = None) -> None:
         plain, assisted = best(rows[name], 0.0), best(rows[name], CAP)
         counts[0] += plain is not None and plain["mpjpe_g"] <= TARGET_MM
         counts[1] += assisted is not None and assisted["mpjpe_g"] <= TARGET_MM
-        setting = lambda r: (r["cap"], r["torque"], r["strength"])  # noqa: E731
-        more = [r for r in rows[name] if r["cap"] > CAP or r["torque"] > 0.0 or r["strength"] != 1.0]
+        setting = lambda r: (r["cap"], r["torque"], r["strength"], r["torsion"])  # noqa: E731
+        more = [r for r in rows[name] if r["cap"] > CAP or r["torque"] > 0.0 or r["strength"] != 1.0 or r["torsion"]]
         more = [min([r for r in more if setting(r) == k], key=lambda r: r["mpjpe_g"])
                 for k in sorted({setting(r) for r in more})]  # fmt: skip
         extra = "; ".join(f"{cell(r)} at {label(r)}" for r in more) or "-"

@@ -10,7 +10,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from common.character.humanoid import DEEPMIMIC_JOINTS, Humanoid, PhysicsConfig
+from common.character.humanoid import DEEPMIMIC_JOINTS, Humanoid, PhysicsConfig, set_torsional_friction
 
 DATA = Path(__file__).resolve().parents[2] / "common" / "motion" / "data" / "deepmimic"
 AMP_XML = Path(__file__).resolve().parents[1] / "data" / "amp_humanoid.xml"
@@ -160,3 +160,49 @@ def test_hinges_compose_as_intrinsic_xyz(humanoid: Humanoid) -> None:
     rel = quat_mul(quat_conj(d.xquat[1]), d.xquat[humanoid.body_index("right_thigh") + 1])
     expected = euler_xyz_to_quat(angles)
     assert abs(np.dot(rel, expected)) == pytest.approx(1.0, abs=1e-12)
+
+
+_SPHERE_ON_FLOOR = """<mujoco><option timestep="0.002"/><worldbody>
+<geom name="floor" type="plane" size="0 0 0.05" condim="3" friction="1 0.005 0.0001"/>
+<body pos="0 0 0.1"><freejoint/><geom type="sphere" size="0.1" mass="1" condim="3" friction="1 0.005 0.0001"/></body>
+</worldbody></mujoco>"""
+
+
+@pytest.mark.parametrize("couple", [0.15, 0.6])
+def test_torsional_friction_resists_a_spin_up_to_its_limit(couple: float) -> None:
+    """A 1 kg ball of radius 0.1 m on the floor (I = 0.4 m r^2 = 0.004 kg m^2), a vertical couple held for 0.5 s.
+    Without torsional friction its one contact point gives no moment: w = couple / I x 0.5 s. With a coefficient of
+    0.03 m the floor resists up to 0.03 x 9.81 N = 0.294 N m: 0.15 N m barely turns it (MuJoCo's soft contact creeps),
+    0.6 N m spins it at (0.6 - 0.294) / I x 0.5 s = 38.2 rad/s."""
+
+    def spin(coefficient: float) -> float:
+        m = mujoco.MjModel.from_xml_string(_SPHERE_ON_FLOOR)
+        if coefficient:
+            set_torsional_friction(m, coefficient)
+        d = mujoco.MjData(m)
+        for _ in range(250):
+            d.qfrc_applied[5] = couple
+            mujoco.mj_step(m, d)
+        return float(d.qvel[5])
+
+    assert spin(0.0) == pytest.approx(couple / 0.004 * 0.5, rel=1e-6)
+    held = spin(0.03)
+    if couple < 0.03 * 9.81:
+        assert abs(held) < 0.05 * couple / 0.004 * 0.5  # under 5 % of the free spin
+    else:
+        assert held == pytest.approx((couple - 0.03 * 9.81) / 0.004 * 0.5, rel=0.05)
+
+
+def test_torsional_friction_sets_the_floor_only() -> None:
+    base, h = Humanoid().model, Humanoid(PhysicsConfig(torsional_friction=0.03)).model
+    floor = mujoco.mj_name2id(h, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+    assert h.geom_condim[floor] == 4 and h.geom_friction[floor, 1] == 0.03
+    others = np.arange(h.ngeom) != floor
+    np.testing.assert_array_equal(h.geom_condim[others], base.geom_condim[others])
+    np.testing.assert_array_equal(h.geom_friction[others], base.geom_friction[others])
+    assert base.geom_condim[floor] == 3  # the default character is unchanged
+    with pytest.raises(ValueError, match="torsional_friction"):
+        PhysicsConfig(torsional_friction=-0.01)
+    with pytest.raises(ValueError, match="no floor"):
+        set_torsional_friction(mujoco.MjModel.from_xml_string("<mujoco><worldbody><body><freejoint/>"
+                                                              "<geom size='0.1'/></body></worldbody></mujoco>"), 0.03)
