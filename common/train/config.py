@@ -64,12 +64,17 @@ def yaml_problem(e: yaml.YAMLError) -> str:
     return f"{problem} at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else problem
 
 
+_UMASK = os.umask(0o022)  # read once, at import (os.umask sets as it reads)
+os.umask(_UMASK)
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path`` that replaces ``path`` only if the block succeeds.
 
     The temporary file lives in the same folder so that ``os.replace`` is an atomic rename; on any
-    exception it is removed and ``path`` keeps its previous content.
+    exception it is removed and ``path`` keeps its previous content. The file gets the mode a plain ``open``
+    would give it (``path``'s own if it exists, else 0o666 less the umask), not the temporary file's 0o600.
 
     Args:
         path: Final destination.
@@ -84,6 +89,8 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     tmp = Path(tmp_name)
     try:
         yield tmp
+        if tmp.exists():
+            tmp.chmod(path.stat().st_mode & 0o7777 if path.exists() else 0o666 & ~_UMASK)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
@@ -10,7 +11,15 @@ from typing import Literal
 import pytest
 import yaml
 
-from common.train.config import ConfigError, apply_overrides, from_dict, load_config, save_config, to_dict
+from common.train.config import (
+    ConfigError,
+    apply_overrides,
+    atomic_output,
+    from_dict,
+    load_config,
+    save_config,
+    to_dict,
+)
 
 
 @dataclass(frozen=True)
@@ -248,3 +257,22 @@ def test_a_bad_base_is_refused_naming_the_file(tmp_path: Path) -> None:
     _write(tmp_path, "name: a\nsed: 1\n", "c.yaml")
     with pytest.raises(ConfigError, match="unknown key 'sed'"):
         load_config(RunCfg, _write(tmp_path, "base: c.yaml\n", "d.yaml"))
+
+
+def test_atomic_output_gives_the_mode_open_would(tmp_path: Path) -> None:
+    """mkstemp makes its file 0o600; the written file must get 0o666 less the umask, as ``open`` gives a new file,
+    and a file written again keeps its own mode. A failed block leaves the old content and no temporary file."""
+    umask = os.umask(0o022)
+    os.umask(umask)
+    new = tmp_path / "new.txt"
+    with atomic_output(new) as tmp:
+        tmp.write_text("a")
+    assert stat.S_IMODE(new.stat().st_mode) == 0o666 & ~umask
+    new.chmod(0o640)
+    with atomic_output(new) as tmp:
+        tmp.write_text("b")
+    assert stat.S_IMODE(new.stat().st_mode) == 0o640 and new.read_text() == "b"
+    with pytest.raises(RuntimeError), atomic_output(new) as tmp:
+        tmp.write_text("c")
+        raise RuntimeError("writer failed")
+    assert new.read_text() == "b" and sorted(p.name for p in tmp_path.iterdir()) == ["new.txt"]
