@@ -48,6 +48,8 @@ def mirror_name(name: str) -> str:
     if name.startswith("right_"):
         return "left_" + name[len("right_") :]
     return name
+
+
 def set_torsional_friction(m: mujoco.MjModel, coefficient: float) -> None:
     """Gives every geom of the world body (the floor) ``condim`` 4 and the torsional friction ``coefficient`` (m), so
     that each contact with it resists spinning about its normal up to ``coefficient`` times its normal force
