@@ -36,7 +36,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from common.train.logs import read_metrics  # noqa: E402
+from common.run.logs import read_metrics  # noqa: E402
 from report.compare import main as compare_main  # noqa: E402
 
 LEARNERS = {"supertrack": "supertrack.train", "ppo": "ppo.train"}

@@ -16,9 +16,9 @@ import argparse
 import functools
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import EvalConfig, evaluate, reference_policy
 from common.motion.dataset import load_motions
 from common.sim.rewards import TerminationConfig
-from common.train.evaluate import EvalConfig, evaluate, reference_policy
 
 
 def main() -> None:

@@ -20,10 +20,10 @@ import numpy as np
 import torch
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import evaluate
 from common.motion.dataset import load_motions
-from common.train.checkpoint import load_checkpoint_file
-from common.train.evaluate import evaluate
-from common.train.run import numbered_checkpoints
+from common.run.checkpoint import load_checkpoint_file
+from common.run.directory import numbered_checkpoints
 from report.runs import load_run
 from supertrack.export import load_eval_policy
 

@@ -23,8 +23,8 @@ from gym_throughput import raw_block  # this folder: the script's own
 from mujoco import rollout
 
 from common.character.humanoid import Humanoid
+from common.config import load_config
 from common.motion.dataset import load_motions
-from common.train.config import load_config
 from ppo.config import PPOTrackerConfig
 from ppo.learner import PPOLearner
 

@@ -1,9 +1,9 @@
 """Where a policy's root goes off the reference: behind or ahead, to the side, down, or turned.
 
 MPJPE-g adds root drift to pose error; MPJPE-l removes it. When MPJPE-g is high and MPJPE-l low, this script says what
-kind of drift it is. It plays a run's evaluation policy from the evaluator's start frames (``common.train.evaluate``'s
-protocol and full horizon: a failed episode plays on) and splits the root's offset from the reference at chosen
-frames into
+kind of drift it is. It plays a run's evaluation policy from the evaluator's start frames
+(``common.evaluation.evaluate``'s protocol and full horizon: a failed episode plays on) and splits the root's
+offset from the reference at chosen frames into
 - **along**: along the reference root's horizontal direction of travel (mean over +-15 frames), positive ahead;
 - **cross**: horizontal, to the reference's left of travel positive;
 - **down**: the reference root's height minus the simulated one's;
@@ -29,10 +29,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from common.character.humanoid import Humanoid  # noqa: E402
+from common.evaluation.evaluate import EvalConfig, episode_starts  # noqa: E402
 from common.maths.rotations import quat_yaw  # noqa: E402
 from common.motion.dataset import load_motions  # noqa: E402
 from common.sim.gym import GymConfig, TrackingGym  # noqa: E402
-from common.train.evaluate import EvalConfig, episode_starts  # noqa: E402
 from report.runs import ReportError, export_module, load_run  # noqa: E402
 
 MIN_SPEED = 0.3  # m/s: below it the reference has no direction of travel (along/cross are not split)

@@ -21,11 +21,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from common.character.humanoid import BodyGeometry, Humanoid  # noqa: E402
+from common.evaluation.evaluate import reference_policy  # noqa: E402
+from common.evaluation.metrics import mpjpe_global_mm  # noqa: E402
 from common.motion.dataset import load_motions  # noqa: E402
 from common.sim.gym import GymConfig, TrackingGym  # noqa: E402
 from common.sim.rewards import TerminationConfig  # noqa: E402
-from common.train.evaluate import reference_policy  # noqa: E402
-from common.train.metrics import mpjpe_global_mm  # noqa: E402
 
 FRAMES = 120
 

@@ -17,8 +17,8 @@ import numpy as np
 
 from common.character.humanoid import Humanoid
 from common.character.kinematics import ForwardKinematics
+from common.config import load_config
 from common.motion.dataset import load_motions
-from common.train.config import load_config
 from samcon import store
 from samcon.config import SamconConfig
 from samcon.cost import COST_TERMS

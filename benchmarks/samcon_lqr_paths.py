@@ -15,9 +15,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from common.character.humanoid import Humanoid
+from common.config import load_config
+from common.evaluation.evaluate import evaluate
 from common.motion.dataset import load_motions
-from common.train.config import load_config
-from common.train.evaluate import evaluate
 from samcon import store
 from samcon.config import SamconConfig
 from samcon.feedback import FeedbackPolicy

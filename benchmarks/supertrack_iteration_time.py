@@ -30,8 +30,8 @@ import numpy as np
 import torch
 
 from common.character.humanoid import Humanoid
+from common.config import load_config
 from common.motion.dataset import load_motions
-from common.train.config import load_config
 from supertrack.config import SuperTrackConfig
 from supertrack.learner import SuperTrackLearner
 

@@ -32,13 +32,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from common.character.humanoid import Humanoid  # noqa: E402
+from common.config import load_config  # noqa: E402
+from common.evaluation.evaluate import reference_policy  # noqa: E402
 from common.motion.dataset import load_motions  # noqa: E402
 from common.motion.library import MotionLibrary  # noqa: E402
+from common.run.checkpoint import CheckpointError  # noqa: E402
+from common.run.directory import read_checkpoint  # noqa: E402
 from common.sim.gym import TrackingGym  # noqa: E402
-from common.train.checkpoint import CheckpointError  # noqa: E402
-from common.train.config import load_config  # noqa: E402
-from common.train.evaluate import reference_policy  # noqa: E402
-from common.train.run import read_checkpoint  # noqa: E402
 from common.train.training import gym_config  # noqa: E402
 from supertrack.actor import GymActor  # noqa: E402
 from supertrack.config import SuperTrackConfig  # noqa: E402

@@ -25,9 +25,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from common.character.humanoid import Humanoid  # noqa: E402
+from common.config import load_config  # noqa: E402
 from common.maths import torch_rotations as R  # noqa: E402
 from common.motion.dataset import load_motions  # noqa: E402
-from common.train.config import load_config  # noqa: E402
 from supertrack.config import SuperTrackConfig  # noqa: E402
 from supertrack.learner import SuperTrackLearner  # noqa: E402
 from supertrack.rollout import world_model_rollout  # noqa: E402

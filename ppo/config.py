@@ -1,4 +1,4 @@
-"""The ``train-ppo`` config: frozen dataclasses loaded from YAML by :mod:`common.train.config` (unknown keys rejected).
+"""The ``train-ppo`` config: frozen dataclasses loaded from YAML by :mod:`common.config` (unknown keys rejected).
 
 Sections: ``train`` (run length, evaluation; shared with SuperTrack), ``gym`` (characters, termination, reward),
 ``observation`` (what the networks see), ``network`` (actor and critic), ``ppo`` (rollouts and the update),

@@ -13,11 +13,11 @@ import numpy as np
 import torch
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import Policy
 from common.motion.library import MotionLibrary
+from common.run.directory import load_run_checkpoint
 from common.sim.gym import StepResult
 from common.sim.observation import Observer
-from common.train.evaluate import Policy
-from common.train.run import load_run_checkpoint
 from ppo.config import PPOTrackerConfig
 from ppo.networks import ActorCritic
 from ppo.normalizer import RunningNormalizer

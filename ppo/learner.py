@@ -19,11 +19,11 @@ import numpy as np
 import torch
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import Policy
 from common.motion.library import MotionLibrary
 from common.sim.buffer import CyclicBuffer
 from common.sim.gym import StepResult, TrackingGym
 from common.sim.observation import Observer
-from common.train.evaluate import Policy
 from common.train.training import NanGuard, gym_config
 from ppo.config import PPOTrackerConfig
 from ppo.gae import gae

@@ -1,9 +1,9 @@
 """``compare-trackers``: one comparison report of SuperTrack and PPO runs, re-evaluated on one protocol.
 
-Every run's checkpoint is re-evaluated with the shared evaluator (:func:`common.train.evaluate.evaluate`) on the same
-motions, start frames and seed, rather than trusting the numbers the runs logged; learning curves, thresholds and
-world-model diagnostics come from the runs' ``metrics.jsonl``. Writes ``report.md``, ``report.html`` (self-contained),
-``results.json`` (full-precision numbers) and the PNG figures into ``--out``.
+Every run's checkpoint is re-evaluated with the shared evaluator (:func:`common.evaluation.evaluate.evaluate`)
+on the same motions, start frames and seed, rather than trusting the numbers the runs logged; learning curves,
+thresholds and world-model diagnostics come from the runs' ``metrics.jsonl``. Writes ``report.md``,
+``report.html`` (self-contained), ``results.json`` (full-precision numbers) and the PNG figures into ``--out``.
 
 Example::
 
@@ -25,13 +25,13 @@ import numpy as np
 import torch
 
 from common.character.humanoid import Humanoid
+from common.config import ConfigError
+from common.evaluation.evaluate import EvalConfig, EvalResult, Policy, evaluate
 from common.motion.dataset import bundled_clip_names, load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
 from common.sim.pushes import PushConfig
-from common.train import render
-from common.train.config import ConfigError
-from common.train.evaluate import EvalConfig, EvalResult, Policy, evaluate
+from common.tools import render
 from report import figures, tables
 from report.html import markdown_to_html
 from report.runs import ReportError, Run, export_module, load_run, unique_labels
@@ -221,7 +221,7 @@ def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]],
     labels = [r.label for r in report.runs]
     lines = ["# Tracker comparison", ""]
     lines += [f"- **Note:** {n}" for n in report.notes]
-    lines += ["", f"Every run re-evaluated by `common.train.evaluate` on motions `{', '.join(report.motions)}` "
+    lines += ["", f"Every run re-evaluated by `common.evaluation.evaluate` on motions `{', '.join(report.motions)}` "
               f"(clips: {', '.join(report.results[0].clips)}), {p.starts_per_clip} start(s) per clip, "
               f"{p.max_frames} frames per episode, seed {p.seed}. Best value of each row in bold.", ""]  # fmt: skip
     lines += [PROTOCOL if p.full_horizon else "The runs are scored until their first failure (the earlier "

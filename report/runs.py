@@ -16,9 +16,9 @@ from types import ModuleType
 from typing import Any
 
 from common.character.humanoid import PhysicsConfig
-from common.train.config import ConfigError, from_dict, parse_yaml
-from common.train.evaluate import EvalConfig
-from common.train.logs import read_metrics
+from common.config import ConfigError, from_dict, parse_yaml
+from common.evaluation.evaluate import EvalConfig
+from common.run.logs import read_metrics
 
 
 class ReportError(ValueError):
@@ -80,8 +80,8 @@ class Run:
 def _checkpoint(path: Path, iteration: int | None) -> tuple[Path, dict[str, Any]]:
     """The checkpoint of ``iteration`` (None: the newest intact one) and its state, read without running anything."""
     # Imported here (they import torch): reading curves alone stays cheap.
-    from common.train.checkpoint import CheckpointError, load_checkpoint_file, recorded_digest
-    from common.train.run import load_newest_checkpoint, newest_checkpoint, numbered_checkpoints
+    from common.run.checkpoint import CheckpointError, load_checkpoint_file, recorded_digest
+    from common.run.directory import load_newest_checkpoint, newest_checkpoint, numbered_checkpoints
 
     numbered = dict(numbered_checkpoints(path / "checkpoints"))
     if iteration is None and newest_checkpoint(path / "checkpoints") is None:

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.train import metrics as M
-from common.train.evaluate import EvalResult
+from common.evaluation import metrics as M
+from common.evaluation.evaluate import EvalResult
 from report.figures import world_model_keys
 from report.runs import Run, method_groups
 

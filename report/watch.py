@@ -22,10 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from common.character.humanoid import Humanoid
+from common.config import ConfigError
 from common.motion.dataset import load_motions
 from common.motion.motion import MotionFormatError
-from common.train import render
-from common.train.config import ConfigError
+from common.tools import render
 from report.runs import ReportError, export_module, load_run
 
 

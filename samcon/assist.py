@@ -62,14 +62,14 @@ import numpy as np
 from common.character.humanoid import BodyGeometry, Humanoid
 from common.character.kinematics import ForwardKinematics
 from common.character.state import CharacterState
+from common.config import ConfigError, atomic_output, load_config
+from common.evaluation import metrics as M
+from common.evaluation.evaluate import EvalConfig
 from common.maths.rotations import quat_conj, quat_mul, quat_rotate, quat_rotate_inv, quat_to_rotvec
 from common.motion.dataset import resolve_clips
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
 from common.sim.rewards import termination
-from common.train import metrics as M
-from common.train.config import ConfigError, atomic_output, load_config
-from common.train.evaluate import EvalConfig
 from samcon.config import SamconConfig
 from samcon.feasibility import (
     CONTACT_TOLERANCE,

@@ -1,4 +1,4 @@
-"""The config of ``track-samcon``: frozen dataclasses loaded with :func:`common.train.config.load_config`.
+"""The config of ``track-samcon``: frozen dataclasses loaded with :func:`common.config.load_config`.
 
 The section names ``train`` and ``gym`` follow the learners' configs so that the report reads a SAMCON run's
 motions, evaluation protocol and physics the same way (:mod:`report.runs`).
@@ -10,7 +10,7 @@ from dataclasses import dataclass, field, replace
 from typing import Literal
 
 from common.character.humanoid import PhysicsConfig
-from common.train.evaluate import EvalConfig
+from common.evaluation.evaluate import EvalConfig
 
 
 @dataclass(frozen=True)

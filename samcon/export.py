@@ -10,8 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import Policy
 from common.motion.library import MotionLibrary
-from common.train.evaluate import Policy
 from samcon import store
 from samcon.feedback import open_loop_policy
 from samcon.lqr import evaluation_policy

@@ -84,9 +84,9 @@ import mujoco
 import numpy as np
 
 from common.character.humanoid import BodyGeometry, Humanoid, hinges_to_joint_rotations, joint_rotations_to_hinges
+from common.config import atomic_output
 from common.motion.dataset import resolve_clips
 from common.motion.library import MotionLibrary
-from common.train.config import atomic_output
 
 CONTACT_TOLERANCE = 0.03  # m: a geom whose lowest point is this close to the floor (or below it) touches it
 RESIDUAL_THRESHOLD = 0.1  # body weights: the residual force counted as "large"

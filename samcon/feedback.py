@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import Policy
 from common.motion.library import MotionLibrary
 from common.sim.gym import StepResult
-from common.train.evaluate import Policy
 from samcon.cost import feedback_features
 
 if TYPE_CHECKING:

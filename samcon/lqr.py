@@ -38,11 +38,11 @@ import mujoco
 import numpy as np
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import EvalConfig, Policy
 from common.maths.rotations import quat_from_yaw, quat_mul, quat_rotate, quat_yaw
 from common.motion.library import MotionLibrary
 from common.sim.gym import GymConfig, StepResult, TrackingGym
 from common.sim.sim import BatchedSim
-from common.train.evaluate import EvalConfig, Policy
 from samcon.config import LqrConfig
 from samcon.feedback import ClipPlan, FeedbackPolicy
 from samcon.search import AssistLaw, Trajectory

@@ -30,10 +30,10 @@ import mujoco
 import numpy as np
 
 from common.character.humanoid import Humanoid, mirror_name
+from common.evaluation import metrics as M
+from common.evaluation.evaluate import EvalConfig
 from common.motion.library import MotionLibrary
 from common.sim.gym import GymConfig, TrackingGym
-from common.train import metrics as M
-from common.train.evaluate import EvalConfig
 from samcon.config import OptimiseConfig
 from samcon.cost import FEATURE_NAMES
 from samcon.feedback import ClipPlan, FeedbackPolicy

@@ -29,12 +29,12 @@ import numpy as np
 
 from common.character.humanoid import Humanoid
 from common.character.kinematics import ForwardKinematics
+from common.config import ConfigError, atomic_output, load_config
+from common.evaluation.evaluate import EvalConfig, EvalResult, evaluate
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
-from common.train.config import ConfigError, atomic_output, load_config
-from common.train.evaluate import EvalConfig, EvalResult, evaluate
-from common.train.run import RunDir, RunDirError
+from common.run.directory import RunDir, RunDirError
 from samcon import store
 from samcon.config import FeedbackConfig, SamconConfig
 from samcon.cost import COST_TERMS, tracking_cost

@@ -12,9 +12,9 @@ import numpy as np
 import torch
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import Policy as EvalPolicy
 from common.motion.library import MotionLibrary
-from common.train.evaluate import Policy as EvalPolicy
-from common.train.run import load_run_checkpoint
+from common.run.directory import load_run_checkpoint
 from supertrack.actor import Actor
 from supertrack.config import SuperTrackConfig
 from supertrack.models import Policy

@@ -29,11 +29,11 @@ import numpy as np
 import torch
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import Policy as EvalPolicy
 from common.motion.library import MotionLibrary
 from common.sim.buffer import CyclicBuffer
 from common.sim.collect import Block, CollectorSpec, make_collector
 from common.train.averaging import WeightAverage
-from common.train.evaluate import Policy as EvalPolicy
 from common.train.training import NanGuard, gym_config
 from supertrack.actor import Actor, GymActor
 from supertrack.config import SuperTrackConfig

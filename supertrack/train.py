@@ -17,12 +17,12 @@ from typing import Any
 import numpy as np
 
 from common.character.humanoid import Humanoid
+from common.config import to_dict
+from common.evaluation.evaluate import EvalResult
 from common.motion.library import MotionLibrary
+from common.run.checkpoint import CheckpointError
+from common.run.directory import read_checkpoint
 from common.sim.collect import CollectorError
-from common.train.checkpoint import CheckpointError
-from common.train.config import to_dict
-from common.train.evaluate import EvalResult
-from common.train.run import read_checkpoint
 from common.train.training import Trainer, add_common_arguments, compat_meta, setup
 from supertrack.config import SuperTrackConfig
 from supertrack.learner import SuperTrackLearner, clip_weights

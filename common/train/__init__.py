@@ -1,1 +1,1 @@
-"""Training and judging: the training loop, run directories, checkpoints, logs, configs, the evaluator and renderer."""
+"""The training loop both learners share (budgets, periodic evaluation, resume) and policy weight averaging."""

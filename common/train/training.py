@@ -24,14 +24,14 @@ import numpy as np
 import torch
 
 from common.character.humanoid import Humanoid
+from common.config import ConfigError, load_config, to_dict
+from common.evaluation.evaluate import EvalConfig, EvalResult, Policy, evaluate
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
+from common.run.directory import RunDir, RunDirError, check_compatible, rng_state, set_rng_state
+from common.run.logs import MetricsLogger, Progress, Timers
 from common.sim.gym import GymConfig
-from common.train.config import ConfigError, load_config, to_dict
-from common.train.evaluate import EvalConfig, EvalResult, Policy, evaluate
-from common.train.logs import MetricsLogger, Progress, Timers
-from common.train.run import RunDir, RunDirError, check_compatible, rng_state, set_rng_state
 
 # The entries of a training checkpoint (Trainer._state): one without them is not a checkpoint to resume.
 _STATE_KEYS = ("meta", "iteration", "samples", "train_seconds", "learner", "rng")
@@ -205,7 +205,7 @@ class Trainer:
         """Restores the newest intact checkpoint (saying which, and why any newer one was passed over).
 
         Raises:
-            ValueError: If no checkpoint reads (:class:`common.train.checkpoint.CheckpointError`) or the newest intact
+            ValueError: If no checkpoint reads (:class:`common.run.checkpoint.CheckpointError`) or the newest intact
                 one belongs to another config or learner.
         """
         path, state, passed_over = self.run_dir.load_latest_checkpoint(map_location="cpu", required=_STATE_KEYS)

@@ -19,8 +19,8 @@ from typing import Any
 import pytest
 import torch
 
-from common.motion import cli as motion_cli
-from common.train.config import parse_yaml
+from common.config import parse_yaml
+from common.tools import motions as motion_cli
 from ppo import train as train_ppo
 from report import compare
 from supertrack import train as train_supertrack

@@ -1,4 +1,4 @@
-"""Tests of common.train.checkpoint: only tensors, arrays and plain values are read; damage is found and passed over."""
+"""Tests of common.run.checkpoint: only tensors, arrays and plain values are read; damage is found and passed over."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import torch
 
-from common.train.checkpoint import CheckpointError, check_plain, load_checkpoint_file
-from common.train.run import RunDir, load_newest_checkpoint, read_checkpoint
+from common.run.checkpoint import CheckpointError, check_plain, load_checkpoint_file
+from common.run.directory import RunDir, load_newest_checkpoint, read_checkpoint
 
 
 class _WritesAMarker:

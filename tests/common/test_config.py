@@ -1,4 +1,4 @@
-"""Tests of common.train.config: strict YAML -> frozen dataclass loading, overrides and round trips."""
+"""Tests of common.config: strict YAML -> frozen dataclass loading, overrides and round trips."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from typing import Literal
 import pytest
 import yaml
 
-from common.train.config import (
+from common.config import (
     ConfigError,
     apply_overrides,
     atomic_output,

@@ -8,12 +8,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import common.train.evaluate as E
+import common.evaluation.evaluate as E
 from common.character.humanoid import Humanoid
 from common.character.state import CharacterState
+from common.evaluation.evaluate import EvalConfig, evaluate, reference_policy
+from common.evaluation.metrics import METRIC_NAMES
 from common.motion.dataset import load_motions
-from common.train.evaluate import EvalConfig, evaluate, reference_policy
-from common.train.metrics import METRIC_NAMES
 
 
 def test_evaluator_is_deterministic_and_complete() -> None:

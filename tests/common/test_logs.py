@@ -1,4 +1,4 @@
-"""Tests of common.train.logs: metrics logging, TensorBoard, timers, periodic triggers and progress."""
+"""Tests of common.run.logs: metrics logging, TensorBoard, timers, periodic triggers and progress."""
 
 from __future__ import annotations
 
@@ -12,15 +12,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-import common.train.logs as logs_mod
-from common.train.logs import (
+import common.run.logs as logs_mod
+from common.run.directory import RunDir
+from common.run.logs import (
     Every,
     MetricsLogger,
     Progress,
     Timers,
     read_metrics,
 )
-from common.train.run import RunDir
 
 
 class _FakeClock:
@@ -128,7 +128,7 @@ def test_missing_tensorboard_warns_once_and_keeps_json(
 
     monkeypatch.setattr(builtins, "__import__", no_tensorboard)
     monkeypatch.setattr(logs_mod, "_tb_warned", False)
-    with caplog.at_level(logging.WARNING, logger="common.train.logs"):
+    with caplog.at_level(logging.WARNING, logger="common.run.logs"):
         for sub in ("a", "b"):
             with MetricsLogger(tmp_path / sub) as logger:
                 logger.log(1, {"x": 1.0}, samples=1, wall_clock_s=0)

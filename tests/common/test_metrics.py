@@ -1,4 +1,4 @@
-"""Tests for common.train.metrics against hand-computed values."""
+"""Tests for common.evaluation.metrics against hand-computed values."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from common.train.metrics import (
+from common.evaluation.metrics import (
     METRIC_NAMES,
     METRICS,
     best_index,

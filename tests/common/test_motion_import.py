@@ -11,7 +11,6 @@ import pytest
 
 from common.character.humanoid import DEEPMIMIC_JOINTS, Humanoid
 from common.maths.rotations import quat_from_axis_angle, quat_geodesic_angle, quat_mul, quat_rotate
-from common.motion.cli import main as mimic_motions
 from common.motion.dataset import load_motions, resolve_clips
 from common.motion.library import MotionLibrary
 from common.motion.motion import Clip, MotionFormatError, read_deepmimic
@@ -21,6 +20,7 @@ from common.motion.motion_import.deepmimic import write_deepmimic
 from common.motion.motion_import.humanoid_bvh import humanoid_bvh, write_humanoid_bvh
 from common.motion.motion_import.joint_map import load_joint_map
 from common.motion.motion_import.retarget import Retargeted, RetargetOptions, retarget
+from common.tools.motions import main as mimic_motions
 
 TAKE = bundled_bvh_dir() / "131_01.bvh"
 CMU_UNIT = 0.056444

@@ -8,12 +8,12 @@ import pytest
 
 from common.character.humanoid import Humanoid
 from common.character.state import CharacterState
+from common.config import ConfigError, from_dict
 from common.maths.rotations import quat_from_yaw, quat_mul, quat_rotate, quat_yaw
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
 from common.sim.gym import GymConfig, TrackingGym
 from common.sim.observation import ObservationConfig, Observer, parc_features
-from common.train.config import ConfigError, from_dict
 
 OFFSETS = (1, 2, 4, 8, 16)
 

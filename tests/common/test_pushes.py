@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import EvalConfig, evaluate, reference_policy
 from common.motion.dataset import load_motions
 from common.sim.gym import GymConfig, TrackingGym
 from common.sim.pushes import PushConfig, impulse_velocity_change, push_schedule
-from common.train.evaluate import EvalConfig, evaluate, reference_policy
 
 
 def test_schedule_by_hand_and_seeded() -> None:

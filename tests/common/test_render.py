@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.motion.cli import main as mimic_motions
-from common.train import render
+from common.tools import render
+from common.tools.motions import main as mimic_motions
 
 
 def _read_video(path: Path) -> tuple[dict, list[np.ndarray]]:

@@ -7,11 +7,11 @@ import pytest
 
 from common.character.humanoid import Humanoid
 from common.character.state import CharacterState
+from common.config import ConfigError, from_dict
 from common.maths.rotations import quat_from_axis_angle, quat_mul
 from common.motion.dataset import load_motions
 from common.sim.rewards import DEFAULT_SCALES, RewardConfig, TrackingReward
 from common.sim.tracking_rewards import REWARD_TERMS, TERM_FUNCTIONS, RewardModel
-from common.train.config import ConfigError, from_dict
 
 # DeepMimic's joint weights of humanoid3d sum to 4.8 (pelvis 1, torso 0.5, head 0.3, thighs 0.5, shins 0.3,
 # feet 0.2, upper arms 0.3, lower arms 0.2, hands 0).

@@ -1,4 +1,4 @@
-"""Tests of common.train.run: run directories, atomic checkpoints, compatibility checks, RNG state and run info."""
+"""Tests of common.run.directory: run directories, atomic checkpoints, compatibility checks, RNG state and run info."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import torch
 
-from common.train.config import load_config
-from common.train.run import (
+from common.config import load_config
+from common.run.directory import (
     RunDir,
     RunDirError,
     check_compatible,

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from common.train.config import ConfigError, load_config
+from common.config import ConfigError, load_config
 from ppo.config import PPOTrackerConfig
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs" / "ppo"

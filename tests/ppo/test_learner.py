@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from common.character.humanoid import Humanoid
+from common.config import load_config
 from common.motion.dataset import load_motions
-from common.train.config import load_config
 from ppo.config import PPOTrackerConfig
 from ppo.learner import PPOLearner
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.train.config import ConfigError, from_dict
+from common.config import ConfigError, from_dict
 from ppo.config import MotionWeightConfig
 from ppo.motion_weights import MotionWeights, bucket_weights
 

@@ -10,10 +10,10 @@ import pytest
 
 from common.character.humanoid import BodyGeometry, Humanoid
 from common.character.state import CharacterState
+from common.config import load_config
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
 from common.sim.rewards import TerminationConfig, termination
-from common.train.config import load_config
 from ppo.config import PPOTrackerConfig
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs" / "ppo"

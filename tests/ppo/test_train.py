@@ -11,10 +11,10 @@ import pytest
 import torch
 
 from common.character.humanoid import Humanoid
+from common.config import load_config
 from common.motion.dataset import load_motions
+from common.run.directory import read_checkpoint
 from common.sim.gym import GymConfig, TrackingGym
-from common.train.config import load_config
-from common.train.run import read_checkpoint
 from ppo.config import PPOTrackerConfig
 from ppo.export import load_eval_policy
 from ppo.learner import PPOLearner

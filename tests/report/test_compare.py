@@ -13,10 +13,10 @@ import pytest
 import torch
 
 from common.character.humanoid import Humanoid
+from common.evaluation import metrics as M
+from common.evaluation.evaluate import evaluate
 from common.motion.dataset import load_motions
-from common.train import metrics as M
-from common.train.evaluate import evaluate
-from common.train.logs import read_metrics
+from common.run.logs import read_metrics
 from ppo.train import main as train_ppo
 from report.compare import PUSHES, Report, build_report, main
 from report.runs import ReportError, export_module, load_run

@@ -28,7 +28,7 @@ def test_summary_has_a_row_per_clip_and_the_mean_last() -> None:
 
 
 def test_metric_tables_put_the_summary_only_where_there_are_several_clips() -> None:
-    from common.train import metrics as M
+    from common.evaluation import metrics as M
 
     full = {k: np.array([1.0, 2.0]) for k in M.METRIC_NAMES}
     two = SimpleNamespace(clips=["walk", "run"], per_clip=full, overall={k: 1.5 for k in M.METRIC_NAMES})

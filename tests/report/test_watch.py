@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from common.train import render
+from common.tools import render
 from ppo.train import main as train_ppo
 from report import watch
 from tests.common.test_render import _read_video

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import EvalConfig, evaluate
 from common.maths.rotations import quat_from_axis_angle, quat_mul, quat_rotate, quat_rotate_inv
 from common.motion.dataset import load_motions
 from common.sim.sim import BatchedSim
-from common.train.evaluate import EvalConfig, evaluate
 from samcon.assist import AssistConfig, RootAssist, judge, main, residual_per_frame
 from samcon.config import CostConfig, SearchConfig
 from samcon.feasibility import body_weight, com_and_clearance, total_mass

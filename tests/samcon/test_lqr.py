@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import EvalConfig, evaluate
 from common.motion.dataset import load_motions
 from common.sim.gym import GymConfig, TrackingGym
 from common.sim.sim import BatchedSim
-from common.train.evaluate import EvalConfig, evaluate
 from samcon.config import LqrConfig
 from samcon.lqr import LqrPath, LqrPolicy, linearise, nominal_states, riccati, stabilise
 
@@ -237,7 +237,7 @@ def test_bad_lqr_settings_are_refused() -> None:
 def test_lqr_walk_config_is_the_default_but_for_its_paths() -> None:
     from dataclasses import asdict
 
-    from common.train.config import load_config
+    from common.config import load_config
     from samcon.config import SamconConfig
 
     default = asdict(load_config(SamconConfig, str(ROOT / "configs/samcon/default.yaml"), []))

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import EvalConfig, episode_starts, evaluate
 from common.motion.dataset import load_motions
-from common.train.evaluate import EvalConfig, episode_starts, evaluate
 from samcon.config import OptimiseConfig
 from samcon.cost import FEATURE_NAMES
 from samcon.feedback import ClipPlan, FeedbackPolicy

@@ -9,8 +9,8 @@ import pytest
 
 from common.character.humanoid import Humanoid
 from common.character.kinematics import ForwardKinematics
+from common.evaluation.evaluate import EvalConfig, evaluate
 from common.motion.dataset import load_motions
-from common.train.evaluate import EvalConfig, evaluate
 from samcon.config import CostConfig, FeedbackConfig, SearchConfig
 from samcon.cost import feedback_features, tracking_cost
 from samcon.feedback import ClipPlan, FeedbackPolicy, open_loop_policy

@@ -225,7 +225,7 @@ def test_sigma_choices_keep_the_cheaper_search(tmp_path: Path) -> None:
 @pytest.mark.parametrize("path", sorted((ROOT / "configs/samcon").glob("*.yaml")), ids=lambda p: p.name)
 def test_every_samcon_config_loads_and_names_real_features_and_actuators(path: Path) -> None:
     from common.character.humanoid import Humanoid
-    from common.train.config import load_config
+    from common.config import load_config
     from samcon.config import SamconConfig
     from samcon.optimise import reduced_indices
 
@@ -240,7 +240,7 @@ def test_feedback_walk_config_is_the_default_but_for_its_experiment() -> None:
     copy without a base took the dataclass defaults, ran without the look-ahead and fell 40 times)."""
     from dataclasses import asdict
 
-    from common.train.config import load_config
+    from common.config import load_config
     from samcon.config import SamconConfig
 
     default = asdict(load_config(SamconConfig, str(ROOT / "configs/samcon/default.yaml"), []))
@@ -258,9 +258,9 @@ def test_visited_states_are_where_the_policy_was_before_it_fell() -> None:
     the last segment start at least visit_lead frames before its failure is returned, and it is the gym's state
     there (re-simulated step by step); a search started from it starts there and replays bit-exactly."""
     from common.character.humanoid import Humanoid
+    from common.evaluation.evaluate import EvalConfig
     from common.motion.dataset import load_motions
     from common.sim.gym import GymConfig, TrackingGym
-    from common.train.evaluate import EvalConfig
     from samcon.config import CostConfig, FeedbackConfig, SearchConfig
     from samcon.cost import FEATURE_NAMES
     from samcon.feedback import ClipPlan, FeedbackPolicy
@@ -311,7 +311,7 @@ def test_visited_states_are_where_the_policy_was_before_it_fell() -> None:
 def test_oracle_config_is_the_default_but_for_its_search_cost_and_polish() -> None:
     from dataclasses import asdict
 
-    from common.train.config import load_config
+    from common.config import load_config
     from samcon.config import SamconConfig
 
     default = asdict(load_config(SamconConfig, str(ROOT / "configs/samcon/default.yaml"), []))
@@ -325,7 +325,7 @@ def test_oracle_config_is_the_default_but_for_its_search_cost_and_polish() -> No
 def test_polish_config_is_the_default_but_for_its_polish() -> None:
     from dataclasses import asdict
 
-    from common.train.config import load_config
+    from common.config import load_config
     from samcon.config import SamconConfig
 
     default = asdict(load_config(SamconConfig, str(ROOT / "configs/samcon/default.yaml"), []))

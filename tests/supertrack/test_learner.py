@@ -11,9 +11,9 @@ import pytest
 import torch
 
 from common.character.humanoid import Humanoid, hinges_to_joint_rotations
+from common.config import load_config
 from common.motion.dataset import load_motions
 from common.sim.buffer import CyclicBuffer
-from common.train.config import load_config
 from supertrack.config import SuperTrackConfig
 from supertrack.learner import SuperTrackLearner, buffer_fields
 from supertrack.rollout import make_steps

@@ -13,10 +13,10 @@ import pytest
 import torch
 
 from common.character.humanoid import Humanoid
+from common.config import load_config
 from common.motion.dataset import load_motions
-from common.train.config import load_config
-from common.train.logs import read_metrics
-from common.train.run import read_checkpoint
+from common.run.directory import read_checkpoint
+from common.run.logs import read_metrics
 from supertrack.config import SuperTrackConfig
 from supertrack.export import load_eval_policy
 from supertrack.learner import SuperTrackLearner

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from common.config import parse_yaml
 from common.motion.motion import MotionFormatError
-from common.train.config import parse_yaml
 
 UP_AXES = ("y", "z")
 

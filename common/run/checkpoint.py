@@ -1,4 +1,4 @@
-"""Checkpoint files that are safe to open and whose damage is found: what :class:`common.train.run.RunDir` writes.
+"""Checkpoint files that are safe to open and whose damage is found: what :class:`common.run.directory.RunDir` writes.
 
 A checkpoint holds only tensors, numpy arrays and plain Python values (dicts, lists, tuples, str, int, float,
 bool, None); RNG states are already of that kind (a numpy Generator's ``bit_generator.state`` is a dict of ints,
@@ -34,7 +34,7 @@ try:
 except ImportError:  # numpy < 2
     from numpy.core import multiarray as _np_multiarray
 
-from common.train.config import atomic_output
+from common.config import atomic_output
 
 POINTER_NAME = "latest.json"
 LEGACY_LATEST_NAME = "latest.pt"

@@ -2,7 +2,7 @@
 
 ``metrics.jsonl`` and TensorBoard writing (:class:`MetricsLogger`, :func:`read_metrics`), named wall-clock
 timers (:class:`Timers`), a periodic trigger (:class:`Every`) and the progress display (:class:`Progress`).
-The run directory itself is in :mod:`common.train.run`.
+The run directory itself is in :mod:`common.run.directory`.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from typing import Any, TextIO
 
 import tqdm
 
-from common.train.config import atomic_output
-from common.train.run import RunDir
+from common.config import atomic_output
+from common.run.directory import RunDir
 
 log = logging.getLogger(__name__)
 

@@ -2,7 +2,7 @@
 
 Every clip is played from ``starts_per_clip`` fixed start frames (evenly spaced, the first at t = 0), all
 episodes in parallel in one gym with a fixed seed and no autoreset. Each frame is scored with
-:mod:`common.train.metrics` on the simulated state against the reference at the same time; per-clip numbers average
+:mod:`common.evaluation.metrics` on the simulated state against the reference at the same time; per-clip numbers average
 the frames of that clip's episodes, and the overall numbers average the clips (each clip counts once, whatever its
 length).
 
@@ -35,11 +35,11 @@ import numpy as np
 
 from common.character.humanoid import Humanoid
 from common.character.state import CharacterState
+from common.evaluation import metrics as M
 from common.motion.library import MotionLibrary
 from common.sim.gym import GymConfig, StepResult, TrackingGym
 from common.sim.pushes import PushConfig, push_schedule
 from common.sim.rewards import TerminationConfig
-from common.train import metrics as M
 
 Policy = Callable[[StepResult], np.ndarray]
 FRAME_METRICS = ("mpjpe_g", "mpjpe_l", "root_pos_err", "root_rot_err", "body_rot_err", "joint_vel_err",
@@ -85,7 +85,7 @@ class EvalResult:
 
     Attributes:
         clips: Clip names, in library order.
-        per_clip: {metric: (C,)} for every metric in :data:`common.train.metrics.METRIC_NAMES`.
+        per_clip: {metric: (C,)} for every metric in :data:`common.evaluation.metrics.METRIC_NAMES`.
         overall: {metric: mean over clips}.
         episode_length: Steps played per episode before its first failure. Shape: (C, starts_per_clip).
         episode_max: Steps each episode could have played. Shape: (C, starts_per_clip).

@@ -2,9 +2,9 @@
 
 Layout of a run directory::
 
-    config.yaml               resolved config (common.train.config.save_config)
+    config.yaml               resolved config (common.config.save_config)
     run_info.json             machine, versions, command line, seed, start time (+ one entry per resume)
-    metrics.jsonl             one JSON object per logged iteration (common.train.logs.MetricsLogger)
+    metrics.jsonl             one JSON object per logged iteration (common.run.logs.MetricsLogger)
     tb/                       TensorBoard events (only if the ``tensorboard`` package is installed)
     checkpoints/ckpt_<iteration:08d>.pt   newest K numbered checkpoints (tensors, arrays, plain values only)
     checkpoints/latest.json   names the newest numbered checkpoint; size and SHA-256 of each kept one
@@ -12,8 +12,8 @@ Layout of a run directory::
 Every file that a crash could leave half-written is written to a temporary file in the same folder and
 moved into place with ``os.replace``, so a reader only ever sees a complete old or a complete new file.
 Checkpoints are read without running anything they hold, and ``--resume`` passes over a damaged newest
-checkpoint to the newest intact one (:mod:`common.train.checkpoint`).
-Metrics logging, timers and the progress display live in :mod:`common.train.logs`.
+checkpoint to the newest intact one (:mod:`common.run.checkpoint`).
+Metrics logging, timers and the progress display live in :mod:`common.run.logs`.
 """
 
 from __future__ import annotations
@@ -35,7 +35,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from common.train.checkpoint import (
+from common.config import atomic_output, load_config, save_config
+from common.run.checkpoint import (
     LEGACY_LATEST_NAME,
     POINTER_NAME,
     CheckpointError,
@@ -48,7 +49,6 @@ from common.train.checkpoint import (
     set_aside,
     write_pointer,
 )
-from common.train.config import atomic_output, load_config, save_config
 
 log = logging.getLogger(__name__)
 
@@ -227,7 +227,7 @@ class RunDir:
 
         Raises:
             ValueError: If ``state["iteration"]`` exists and differs from ``iteration``.
-            TypeError: If ``state`` holds another kind of object (see :func:`common.train.checkpoint.check_plain`).
+            TypeError: If ``state`` holds another kind of object (see :func:`common.run.checkpoint.check_plain`).
             OSError: If the checkpoint cannot be written.
         """
         saved = dict(state)

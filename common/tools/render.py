@@ -1,7 +1,7 @@
 """Filmstrips and MP4 videos of the simulated character (opaque) over its reference (translucent ghost), MuJoCo
 offscreen; without a reference, plain kinematic playback (``mimic-motions render``).
 
-The rollout runs in the report's process; drawing runs in a child process (``python -m common.train.render``) with
+The rollout runs in the report's process; drawing runs in a child process (``python -m common.tools.render``) with
 ``MUJOCO_GL`` set to the first backend that works (``egl``, then ``osmesa``), because MuJoCo picks its GL backend once,
 at import, and a broken GL driver may abort the process: the report must survive a machine without a renderer.
 """
@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from common.character.humanoid import Humanoid
+from common.evaluation.evaluate import EvalConfig, Policy
 from common.motion.library import MotionLibrary
 from common.sim.gym import GymConfig, TrackingGym
-from common.train.evaluate import EvalConfig, Policy
 
 BACKENDS = ("egl", "osmesa")
 _PROBE = "import mujoco; m = mujoco.MjModel.from_xml_string('<mujoco/>'); mujoco.Renderer(m, 8, 8).render()"
@@ -150,7 +150,7 @@ def write_video(frames: Iterable[np.ndarray], out: Path, fps: float) -> int:
 
 
 def _run_child(out: Path, backend: str, timeout_s: float, **data: object) -> None:
-    """Runs ``python -m common.train.render`` on ``data`` (saved beside ``out``) with MUJOCO_GL = ``backend``."""
+    """Runs ``python -m common.tools.render`` on ``data`` (saved beside ``out``) with MUJOCO_GL = ``backend``."""
     path_npz = out.with_suffix(".npz")
     np.savez(path_npz, **data)
     # The child must import this package even when it is not installed (a source checkout run from elsewhere).
@@ -158,7 +158,7 @@ def _run_child(out: Path, backend: str, timeout_s: float, **data: object) -> Non
     path = os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH", "")) if p)
     env = {**os.environ, "MUJOCO_GL": backend, "PYTHONPATH": path}
     try:
-        proc = subprocess.run([sys.executable, "-m", "common.train.render", str(path_npz), str(out)], env=env,
+        proc = subprocess.run([sys.executable, "-m", "common.tools.render", str(path_npz), str(out)], env=env,
                               capture_output=True, text=True, timeout=timeout_s)  # fmt: skip
     finally:
         path_npz.unlink(missing_ok=True)

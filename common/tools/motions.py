@@ -121,7 +121,7 @@ def _render(args: argparse.Namespace, humanoid: Humanoid) -> int:
     from pathlib import Path
 
     from common.motion.motion_import.pipeline import playback_qpos
-    from common.train import render
+    from common.tools import render
 
     library = load_motions(args.motions, humanoid)
     clip = library.clip_index(args.clip) if args.clip else 0

@@ -1,0 +1,1 @@
+"""The shared evaluator (deterministic episodes from fixed starts) and the tracking metrics it reports."""
