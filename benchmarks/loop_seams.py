@@ -3,9 +3,10 @@
 The library closes a wrap clip's loop in pose (the bend) and, asked for (``seam_bridge``, off by default), in velocity:
 the keyframes within ``SEAM_BRIDGE`` seconds either side of the seam are replaced by a cubic Hermite curve across it
 (``common/motion/library.py``). This prints, per wrap clip and for the bridge off (0 s) and on, over the first 512
-frames: the largest residual force (``samcon.feasibility``: the force on the centre of mass no floor contact can give,
-in body weights) within 4 frames of a seam and elsewhere, its mean, the largest frame-to-frame change of the root's
-velocity at the seams and elsewhere (m/s), and how far the bridge moved the bodies (the largest per-frame mean, mm).
+frames: the largest residual force (``studies.samcon.feasibility``: the force on the centre of mass no floor contact
+can give, in body weights) within 4 frames of a seam and elsewhere, its mean, the largest frame-to-frame change of
+the root's velocity at the seams and elsewhere (m/s), and how far the bridge moved the bodies (the largest per-frame
+mean, mm).
 
 Run: ``.venv/bin/python benchmarks/loop_seams.py [MOTIONS ...]`` (default: the 20 bundled clips)
 """
@@ -23,8 +24,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from common.character.humanoid import Humanoid  # noqa: E402
 from common.motion.dataset import resolve_clips  # noqa: E402
 from common.motion.library import SEAM_BRIDGE, MotionLibrary  # noqa: E402
-from samcon.assist import residual_per_frame  # noqa: E402
 from samcon.search import reference_frames  # noqa: E402
+from studies.samcon.assist import residual_per_frame  # noqa: E402
 
 FRAMES = 512
 NEAR = 4  # frames either side of a seam that count as the seam's

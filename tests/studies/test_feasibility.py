@@ -12,7 +12,7 @@ import pytest
 
 from common.character.humanoid import Humanoid
 from common.motion.dataset import load_motions
-from samcon.feasibility import (
+from studies.samcon.feasibility import (
     CONTACT_TOLERANCE,
     FrameFeasibility,
     accel_step,

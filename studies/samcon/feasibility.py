@@ -56,7 +56,7 @@ Three measures per reference frame of the motion library (no simulation, no trac
    can. The forces f_i are found by non-negative least squares (:func:`nnls`) on the pyramid edges, the force rows
    weighted :data:`FORCE_PRIORITY` times the moment rows in body-weight units (m |g| and m |g| x 1 m): the force
    is matched first (as closely as measure 1 allows), then the moment as closely as forces with that sum allow.
-   The **moment residual** is the part of dL/dt left, in body-weight metres (the unit of ``samcon.assist``'s
+   The **moment residual** is the part of dL/dt left, in body-weight metres (the unit of ``studies.samcon.assist``'s
    ``--torque-cap``): the smallest root couple the reference needs on top of what its contacts give. Moving the
    contact points and the moment arm within the window is where it is an estimate, not a bound.
 
@@ -66,7 +66,7 @@ is frame 0 moved by the cycle transform), so the loop seam is differentiated lik
 
 Command::
 
-    python -m samcon.feasibility --motions all --out runs/feasibility.json
+    python -m studies.samcon.feasibility --motions all --out runs/feasibility.json
 """
 
 from __future__ import annotations
@@ -90,7 +90,8 @@ from common.motion.library import MotionLibrary
 
 CONTACT_TOLERANCE = 0.03  # m: a geom whose lowest point is this close to the floor (or below it) touches it
 RESIDUAL_THRESHOLD = 0.1  # body weights: the residual force counted as "large"
-MOMENT_THRESHOLD = 0.05  # body-weight metres: the moment residual counted as "large" (half samcon.assist's 0.1 couple)
+# body-weight metres: the moment residual counted as "large" (half the 0.1 couple of studies.samcon.assist)
+MOMENT_THRESHOLD = 0.05
 FORCE_FITS = 0.01  # body weights: a frame whose residual force is below this has its force in the cone (measure 3)
 FORCE_PRIORITY = 1000.0  # weight of the force rows against the moment rows in the contact-force fit (measure 3)
 PYRAMID_EDGES = 8
@@ -653,7 +654,7 @@ def _joint_cell(name: str, ratio: float) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m samcon.feasibility", description=__doc__.split("\n\n")[0],
+    parser = argparse.ArgumentParser(prog="python -m studies.samcon.feasibility", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("--motions", nargs="+", default=["all"],
                         help="clips to measure: bundled clip names (walk run ...), 'all' (the 20 bundled "

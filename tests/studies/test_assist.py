@@ -1,5 +1,5 @@
-"""Root forces (samcon.assist): the force's sign, units and place against physics, the law by hand, assisted searches
-that replay bit-exactly, a judge that is the evaluator's, and the command."""
+"""Root forces (studies.samcon.assist): the force's sign, units and place against physics, the law by hand, assisted
+searches that replay bit-exactly, a judge that is the evaluator's, and the command."""
 
 from __future__ import annotations
 
@@ -16,13 +16,13 @@ from common.evaluation.evaluate import EvalConfig, evaluate
 from common.maths.rotations import quat_from_axis_angle, quat_mul, quat_rotate, quat_rotate_inv
 from common.motion.dataset import load_motions
 from common.sim.sim import BatchedSim
-from samcon.assist import AssistConfig, RootAssist, judge, main, residual_per_frame
 from samcon.config import CostConfig, SearchConfig
-from samcon.feasibility import body_weight, com_and_clearance, total_mass
 from samcon.feedback import ClipPlan, open_loop_policy
 from samcon.lqr import linearise, nominal_states
 from samcon.polish import Couple
 from samcon.search import HeldForces, assisted_replay, reference_frames, replay, samcon, start_state
+from studies.samcon.assist import AssistConfig, RootAssist, judge, main, residual_per_frame
+from studies.samcon.feasibility import body_weight, com_and_clearance, total_mass
 
 
 @pytest.fixture(scope="module")
@@ -226,7 +226,7 @@ def test_command_takes_the_couple_away_inside_the_polish(tmp_path: Path) -> None
 def test_paths_are_written_after_every_stage(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A run stopped in its last stage (here the polish without the couple raises) keeps the stages before it in
     --paths: the searched, polished and couple stages."""
-    import samcon.assist as A
+    import studies.samcon.assist as A
 
     calls = []
 

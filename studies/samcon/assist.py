@@ -1,12 +1,12 @@
 """Tracking with a root force: how far a clip is out of reach *because* it needs force no floor contact can give.
 
-``samcon.feasibility`` measures, from the reference alone, the part of the net external force m (a_com - g) that no
-floor contact can supply (its *residual*: all of it in flight, the part outside the friction cone in contact). A
-clip with a residual cannot be tracked exactly by any controller of this character, but that alone does not say how
-close one can get, nor whether the force is what stops the tracker. This module answers it by experiment: the same
-search and polish as ``track-samcon``, with a **root force** (the residual force control of Yuan & Kitani 2020,
-here a fixed law, not learned) on the root body's origin, world frame, at the free joint's translation dofs
-(MuJoCo's ``qfrc_applied``), held over each control step f -> f + 1 like the PD targets
+:mod:`studies.samcon.feasibility` measures, from the reference alone, the part of the net external force
+m (a_com - g) that no floor contact can supply (its *residual*: all of it in flight, the part outside the friction
+cone in contact). A clip with a residual cannot be tracked exactly by any controller of this character, but that
+alone does not say how close one can get, nor whether the force is what stops the tracker. This module answers it by
+experiment: the same search and polish as ``track-samcon``, with a **root force** (the residual force control of
+Yuan & Kitani 2020, here a fixed law, not learned) on the root body's origin, world frame, at the free joint's
+translation dofs (MuJoCo's ``qfrc_applied``), held over each control step f -> f + 1 like the PD targets
 (:class:`AssistConfig`): ``F = clip(scale F_res(f) + m (kp (p* - p) + kd (v* - v)), cap m |g|)``, p and v the root's
 position and velocity at frame f, p* and v* the reference's, F_res the reference's residual. ``cap`` is the budget:
 a clip that tracks within the target with a small cap and not without one needs root forces, measured; one that
@@ -35,14 +35,16 @@ made the search worse on run and jog (README, session 20): the reference's centr
 top of run's flights, and pushing the character down there did not make up for the push-off it could not give.
 
 The residual at frame k is measure 1's h-step difference (the mean acceleration under a triangle of half-width h
-steps, see ``samcon.feasibility``), on the reference frames the search plays (``search.reference_frames``), with the
-first and last h frames taking their nearest measured neighbour's. The assisted paths are judged here, by the shared
-metrics and failure rule on the replayed states (:func:`judge`, the evaluator's full-horizon figures); they never
-enter a run directory: the shared evaluator applies no root force, and an assisted path is not a tracker's result.
+steps, see :mod:`studies.samcon.feasibility`), on the reference frames the search plays
+(``search.reference_frames``), with the first and last h frames taking their nearest measured neighbour's. The
+assisted paths are judged here, by the shared metrics and failure rule on the replayed states (:func:`judge`, the
+evaluator's full-horizon figures); they never enter a run directory: the shared evaluator applies no root force, and
+an assisted path is not a tracker's result.
 
 Command::
 
-    python -m samcon.assist --config configs/samcon/polish.yaml --motions run jog --cap 0.5 --out runs/assist.json
+    python -m studies.samcon.assist --config configs/samcon/polish.yaml --motions run jog --cap 0.5 \
+        --out runs/assist.json
 """
 
 from __future__ import annotations
@@ -71,7 +73,10 @@ from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
 from common.sim.rewards import termination
 from samcon.config import SamconConfig
-from samcon.feasibility import (
+from samcon.polish import ROOT_TURN, Couple, polish
+from samcon.search import assisted_replay, horizon, reference_frames, replay, samcon, start_state
+from samcon.track import cli_overrides, clip_generator, polished, segment_progress
+from studies.samcon.feasibility import (
     CONTACT_TOLERANCE,
     accel_step,
     body_weight,
@@ -81,9 +86,6 @@ from samcon.feasibility import (
     residual_vector,
     total_mass,
 )
-from samcon.polish import ROOT_TURN, Couple, polish
-from samcon.search import assisted_replay, horizon, reference_frames, replay, samcon, start_state
-from samcon.track import cli_overrides, clip_generator, polished, segment_progress
 
 
 @dataclass(frozen=True)
@@ -99,7 +101,8 @@ class AssistConfig:
         kd: 1/s, the feedback on its velocity error.
         cap: Largest force in body weights m |g| (0: no force at all, the same code path).
         step: h, the residual's differencing step in control steps (None: the clip's source keyframe spacing rounded
-            up, at least 2, as ``samcon.feasibility`` measures it; see :func:`samcon.feasibility.accel_step`).
+            up, at least 2, as :mod:`studies.samcon.feasibility` measures it; see
+            :func:`studies.samcon.feasibility.accel_step`).
         contact_tolerance: m; a geom this close to the floor in the reference touches it.
         friction: Sliding friction coefficient (None: the model's).
         torque_cap: Largest **root torque** in body-weight metres (m |g| x 1 m; 0: none, the default, the law above
@@ -138,8 +141,8 @@ class AssistConfig:
 
 def residual_per_frame(humanoid: Humanoid, qpos: np.ndarray, dt: float, step: int, tolerance: float = CONTACT_TOLERANCE,
                        friction: float | None = None) -> np.ndarray:  # fmt: skip
-    """The reference's residual force vector (:func:`samcon.feasibility.residual_vector`) at every frame, the first and
-    last h frames taking their nearest measured neighbour's.
+    """The reference's residual force vector (:func:`studies.samcon.feasibility.residual_vector`) at every frame,
+    the first and last h frames taking their nearest measured neighbour's.
 
     Args:
         qpos: Reference generalised positions on the control grid. Shape: (T, nq), T >= 2h + 1.
@@ -172,7 +175,7 @@ class RootAssist:
         if m.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE or m.jnt_dofadr[0] != 0 or m.jnt_qposadr[0] != 0:
             raise ValueError(f"{humanoid.xml_path}: the root force needs the free joint first")
         if cfg.step is None:
-            raise ValueError("assist.step must be resolved per clip (samcon.feasibility.accel_step) before use")
+            raise ValueError("assist.step must be resolved per clip (studies.samcon.feasibility.accel_step) before use")
         self.cfg, self.nv, self.model = cfg, m.nv, m
         self.mass, self.limit = total_mass(humanoid), cfg.cap * body_weight(humanoid)
         self.torque_limit = cfg.torque_cap * body_weight(humanoid) * 1.0  # body-weight metres -> N m
@@ -504,7 +507,7 @@ def _given_paths(spec: str, motions: Sequence[str]) -> dict[str, np.ndarray]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m samcon.assist", description=__doc__.split("\n\n")[0],
+    parser = argparse.ArgumentParser(prog="python -m studies.samcon.assist", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("--config", default="configs/samcon/polish.yaml",
                         help="track-samcon config whose search, cost, polish and seed are used "
@@ -559,7 +562,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "<clip>/then_search_<i>)")  # fmt: skip
     parser.add_argument("--step", type=int, default=None, metavar="H",
                         help="differencing step of the residual in control steps (default: per clip, its source "
-                             "keyframe spacing rounded up, at least 2, as samcon.feasibility measures it)")  # fmt: skip
+                             "keyframe spacing rounded up, at least 2, as studies.samcon.feasibility measures "
+                             "it)")  # fmt: skip
     parser.add_argument("--contact-tolerance", type=float, default=CONTACT_TOLERANCE, metavar="METRES",
                         help=f"reference contact tolerance (default: {CONTACT_TOLERANCE} m)")
     parser.add_argument("--friction", type=float, default=None, metavar="MU",

@@ -1,0 +1,1 @@
+"""Studies: measurements and experiments around the trackers. They import the product, never the reverse."""
