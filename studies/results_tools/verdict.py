@@ -1,7 +1,8 @@
 """Per bundled clip, SAMCON's best open-loop tracking so far: without root forces, and with a root force of at most
-0.5 body weights (``python -m samcon.assist``), from the stored result files of sessions 16-26.
+0.5 body weights (``python -m samcon.assist``), from the stored result files of sessions 16-26 (the folders in
+``FOLDERS``).
 
-    python results/session23-samcon/verdict.py [--feasibility results/session23-samcon/feasibility.json]
+    python studies/results_tools/verdict.py [--feasibility results/samcon-study-feasibility/forces.json]
 
 Counted: ``track-samcon`` ``results.json`` copies (the open-loop row) and ``samcon.assist`` JSON files (the searched,
 polished, ``--then-caps``, ``--then-search`` and ``--then-couple`` rows, each at its own caps, of the default law: a
@@ -35,8 +36,25 @@ from samcon.search import horizon  # noqa: E402
 
 TARGET_MM = 60.0
 CAP = 0.5
+# The results measured on the fixed references (session 16 on); the folders before them are left out.
+FOLDERS = (
+    "samcon-study-search-settings/fixed-references",
+    "samcon-study-search-settings/cost-probes",
+    "samcon-study-feedback/cma",
+    "samcon-study-feedback/visits",
+    "samcon-study-lqr-walk",
+    "samcon-study-polish",
+    "samcon-study-root-assist",
+    "samcon-study-loop-seams",
+    "samcon-study-torsional-friction",
+)
 # On session 22's bridged references (commit 98bbe92 made the bridge the default for these runs), or not full length.
-EXCLUDE = re.compile(r"session22-samcon/(bridge-|seed\d|search-bridged|scratch/)")
+EXCLUDE = re.compile(r"samcon-study-loop-seams/(bridge-|seed\d|search-bridged|probes/)")
+# ``--start-path`` values written before results/ was renamed (issue 41): the folders they point to now.
+MOVED = {
+    "results/session24-samcon/": "results/samcon-study-root-assist/search-anew/",
+    "results/session25-samcon/": "results/samcon-study-root-assist/couple/",
+}
 
 
 def _physics(data: dict, key: str, default: float) -> float:
@@ -48,10 +66,10 @@ def _physics(data: dict, key: str, default: float) -> float:
 def records(root: Path, full: dict[str, int]) -> dict[str, list[dict]]:
     """Every counted result per clip: mpjpe_g, mpjpe_l, cap (0: no root force), min_per_s, file."""
     out: dict[str, list[dict]] = {name: [] for name in full}
-    for path in sorted(root.glob("results/session*-samcon/**/*.json")):
+    paths = sorted(p for folder in FOLDERS for p in (root / "results" / folder).glob("**/*.json"))
+    for path in paths:
         rel = path.relative_to(root).as_posix()
-        session = int(re.search(r"session(\d+)", rel).group(1))
-        if session < 16 or EXCLUDE.search(rel):
+        if EXCLUDE.search(rel):
             continue
         data = json.loads(path.read_text())
         if not isinstance(data, dict) or not isinstance(data.get("clips"), dict):
@@ -79,7 +97,10 @@ def records(root: Path, full: dict[str, int]) -> dict[str, list[dict]]:
                            for t in row.get("then_couple", [])]  # fmt: skip
                 judged += [(row["unassisted"], 0.0, 0.0, "unassisted")] if "unassisted" in row else []
                 if data.get("start_path") and base["min_per_s"] is not None:
-                    given = Path(data["start_path"].rpartition(":")[0]).with_suffix(".json")
+                    start = data["start_path"].rpartition(":")[0]
+                    for before, now in MOVED.items():
+                        start = start.replace(before, now)
+                    given = Path(start).with_suffix(".json")
                     given = ROOT / given if (ROOT / given).is_file() else path.with_name(given.name)
                     source = json.loads(given.read_text())["clips"][name]
                     base["min_per_s"] += source["minutes_per_motion_second"]
@@ -96,8 +117,9 @@ def records(root: Path, full: dict[str, int]) -> dict[str, list[dict]]:
 
 def best(rows: list[dict], max_cap: float) -> dict | None:
     """The lowest MPJPE-g with a force of at most ``max_cap`` body weights and no root torque."""
-    within = [r for r in rows if r["cap"] <= max_cap and r["torque"] == 0.0 and r["strength"] == 1.0
-              and r["torsion"] == 0.0]
+    within = [
+        r for r in rows if r["cap"] <= max_cap and r["torque"] == 0.0 and r["strength"] == 1.0 and r["torsion"] == 0.0
+    ]
     return min(within, key=lambda r: (r["mpjpe_g"], r["min_per_s"] or 0.0)) if within else None
 
 
@@ -118,8 +140,12 @@ def cell(r: dict | None) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--feasibility", default=None, metavar="FILE.json",
-                        help="samcon.feasibility output: adds the reference's residual force and joint-range columns")
+    parser.add_argument(
+        "--feasibility",
+        default=None,
+        metavar="FILE.json",
+        help="samcon.feasibility output: adds the reference's residual force and joint-range columns",
+    )
     args = parser.parse_args(argv)
     humanoid = Humanoid()
     clips = resolve_clips(["all"])
@@ -127,8 +153,10 @@ def main(argv: list[str] | None = None) -> None:
     full = {name: horizon(library, c, 512) for c, name in enumerate(library.names)}
     feas = json.loads(Path(args.feasibility).read_text())["clips"] if args.feasibility else {}
     rows = records(ROOT, full)
-    head = ("| clip | frames | no root force: MPJPE-g / -l mm (one-core min per s; file) | root force <= 0.5 body "
-            "weights | more: a larger force or a root torque |")
+    head = (
+        "| clip | frames | no root force: MPJPE-g / -l mm (one-core min per s; file) | root force <= 0.5 body "
+        "weights | more: a larger force or a root torque |"
+    )
     rule = "|---|---|---|---|---|"
     if feas:
         head += " residual force mean / share > 0.1 (body weights) | hinge out of range (share of frames) |"
@@ -142,7 +170,7 @@ def main(argv: list[str] | None = None) -> None:
         counts[1] += assisted is not None and assisted["mpjpe_g"] <= TARGET_MM
         setting = lambda r: (r["cap"], r["torque"], r["strength"], r["torsion"])  # noqa: E731
         more = [r for r in rows[name] if r["cap"] > CAP or r["torque"] > 0.0 or r["strength"] != 1.0 or r["torsion"]]
-        more = [min([r for r in more if setting(r) == k], key=lambda r: r["mpjpe_g"])
+        more = [min([r for r in more if setting(r) == k], key=lambda r: (r["mpjpe_g"], r["min_per_s"] or 0.0))
                 for k in sorted({setting(r) for r in more})]  # fmt: skip
         extra = "; ".join(f"{cell(r)} at {label(r)}" for r in more) or "-"
         counts[2] += any(r["mpjpe_g"] <= TARGET_MM for r in rows[name])

@@ -3,7 +3,8 @@ one stage played from the clip's start (one episode, t = 0, the evaluator's full
 force, as ``compare-trackers`` judges a SAMCON run's open-loop trajectory. Only meaningful for a stage made without
 help (``--then-search ... 0:0``): the evaluator applies none.
 
-    python results/session24-samcon/evaluate_paths.py runs/s24/cont2-cartwheel.npz then_search_1
+    python studies/results_tools/evaluate_paths.py results/samcon-study-root-assist/search-anew/cont-cartwheel.npz \
+        then_search_1
 """
 
 from __future__ import annotations
@@ -17,8 +18,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from common.character.humanoid import Humanoid  # noqa: E402
+from common.evaluation.evaluate import EvalConfig, evaluate  # noqa: E402
 from common.motion.dataset import load_motions  # noqa: E402
-from common.train.evaluate import EvalConfig, evaluate  # noqa: E402
 from samcon.feedback import ClipPlan, open_loop_policy  # noqa: E402
 
 
@@ -40,8 +41,10 @@ def main(argv: list[str] | None = None) -> None:
     ev = EvalConfig(starts_per_clip=1, max_frames=args.max_frames, threads=1)
     result = evaluate(open_loop_policy(plans, library, humanoid), library, humanoid, ev)
     for c, name in enumerate(library.names):
-        print(f"{name} ({args.stage}, {len(plans[name].targets)} frames): MPJPE-g {result.per_clip['mpjpe_g'][c]:.1f} "
-              f"mm, MPJPE-l {result.per_clip['mpjpe_l'][c]:.1f} mm, survival {result.per_clip['survival'][c]:.2f}")
+        print(
+            f"{name} ({args.stage}, {len(plans[name].targets)} frames): MPJPE-g {result.per_clip['mpjpe_g'][c]:.1f} "
+            f"mm, MPJPE-l {result.per_clip['mpjpe_l'][c]:.1f} mm, survival {result.per_clip['survival'][c]:.2f}"
+        )
 
 
 if __name__ == "__main__":
