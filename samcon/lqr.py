@@ -42,35 +42,25 @@ from common.evaluation.evaluate import EvalConfig, Policy
 from common.maths.rotations import quat_from_yaw, quat_mul, quat_rotate, quat_yaw
 from common.motion.library import MotionLibrary
 from common.sim.gym import GymConfig, StepResult, TrackingGym
-from common.sim.sim import BatchedSim
 from samcon.config import LqrConfig
 from samcon.feedback import ClipPlan, FeedbackPolicy
-from samcon.search import AssistLaw, Trajectory
+from samcon.search import ExternalForce, Trajectory, replay
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
-def nominal_states(humanoid: Humanoid, start_state: np.ndarray, targets: np.ndarray, law: AssistLaw | None = None,
-                   first: int = 0) -> np.ndarray:  # fmt: skip
-    """The full states a path passes through, replayed as the gym steps (:class:`common.sim.sim.BatchedSim`), so
-    that they are bit-exactly those of an evaluator episode that plays ``targets`` from ``start_state`` (with
-    ``law``, the generalised force it gives at every step too, the path's first state at clip frame ``first``:
-    :mod:`samcon.assist`). Shape: (F + 1, nstate)."""
-    sim = BatchedSim(humanoid, 1, threads=0, applied=law is not None)
-    try:
-        sim.state[0] = start_state
-        out = np.zeros((len(targets) + 1, len(start_state)))
-        out[0] = start_state
-        for f, u in enumerate(targets):
-            sim.step(u[None], None if law is None else law(first + f, sim.qpos, sim.qvel))
-            out[f + 1] = sim.state[0]
-    finally:
-        sim.close()
-    return out
+def nominal_states(humanoid: Humanoid, start_state: np.ndarray, targets: np.ndarray,
+                   force: ExternalForce | None = None, first: int = 0) -> np.ndarray:  # fmt: skip
+    """The full states a path passes through, ``start_state`` first, replayed as the gym steps
+    (:func:`samcon.search.replay`), so that they are bit-exactly those of an evaluator episode that plays ``targets``
+    from ``start_state`` (with ``force``, the external force it gives at every step too, the path's first state at
+    clip frame ``first``). Shape: (F + 1, nstate)."""
+    return np.concatenate([np.asarray(start_state, dtype=np.float64)[None],
+                           replay(humanoid, start_state, targets, force=force, first=first)])  # fmt: skip
 
 
 def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: float,
-              law: AssistLaw | None = None, first: int = 0) -> tuple[np.ndarray, ...]:  # fmt: skip
+              force: ExternalForce | None = None, first: int = 0) -> tuple[np.ndarray, ...]:  # fmt: skip
     """Per control step f, the Jacobians of the next state's tangent coordinates with respect to those of the state
     at f and to the targets held over the step (see the module docstring).
 
@@ -78,9 +68,9 @@ def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: 
         states: Full MuJoCo states at every frame (:func:`nominal_states`). Shape: (F + 1, nstate).
         targets: PD targets of every frame. Shape: (F, nu).
         eps: Finite-difference step.
-        law: A generalised force from the state at every step (:mod:`samcon.assist`; None: none), the path's first
-            state at clip frame ``first``. Its dependence on the state joins A: ``A += dx'/dF dF/dx``, dx'/dF by
-            central differences (``FORCE_STEP`` N) of the step's substeps at the dofs the force depends on.
+        force: An external generalised force from the state at every step (None: none), the path's first state at
+            clip frame ``first``. Its dependence on the state joins A: ``A += dx'/dF dF/dx``, dx'/dF by central
+            differences (:func:`force_response`) at the dofs the force depends on.
 
     Returns:
         A: Shape: (F, 2 nv, 2 nv). B: Shape: (F, 2 nv, nu).
@@ -90,15 +80,15 @@ def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: 
     n, nu, frames = 2 * m.nv, m.nu, len(targets)
     a_out, b_out = np.zeros((frames, n, n)), np.zeros((frames, n, nu))
     a, b = np.zeros((n, n)), np.zeros((n, nu))
-    scratch = None if law is None else mujoco.MjData(m)  # for the force's central differences
+    scratch = None if force is None else mujoco.MjData(m)  # for the force's central differences
     for f in range(frames):
         mujoco.mj_setState(m, d, states[f], _FULL)
         d.ctrl[:] = targets[f]
-        force = jac = None
-        if law is not None:
+        held = jac = None
+        if force is not None:
             qpos, qvel = states[f : f + 1, 1 : 1 + m.nq], states[f : f + 1, 1 + m.nq : 1 + m.nq + m.nv]
-            force, jac = law(first + f, qpos, qvel)[0], law.jacobian(first + f, qpos, qvel)[0]
-            d.qfrc_applied[:] = force
+            held, jac = force(first + f, qpos, qvel)[0], force.jacobian(first + f, qpos, qvel)[0]
+            d.qfrc_applied[:] = held
         a_f, b_f = np.eye(n), np.zeros((n, nu))
         for _ in range(humanoid.physics.substeps):
             mujoco.mjd_transitionFD(m, d, eps, True, a, b, None, None)
@@ -106,20 +96,22 @@ def linearise(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, eps: 
             mujoco.mj_step(m, d)
         if jac is not None:
             for dof in np.flatnonzero(np.abs(jac).max(axis=1) > 0):
-                a_f += np.outer(_force_response(humanoid, scratch, states[f], targets[f], force, int(dof)), jac[dof])
+                a_f += np.outer(force_response(humanoid, scratch, states[f], targets[f], held, int(dof)), jac[dof])
         a_out[f], b_out[f] = a_f, b_f
     return a_out, b_out
 
 
-FORCE_STEP = 0.01  # N: the central-difference step of a generalised force in linearise
+FORCE_STEP = 0.01  # N: the central-difference step of a generalised force in force_response
 
 
-def _force_response(humanoid: Humanoid, d: mujoco.MjData, state: np.ndarray, target: np.ndarray, force: np.ndarray,
-                    dof: int) -> np.ndarray:  # fmt: skip
-    """d(next state's tangent coordinates) / d(force at ``dof``) over one control step, central differences, on
-    the scratch data ``d``. Shape: (2 nv,). The solver's warm start is not part of ``state`` (``mjSTATE_FULLPHYSICS``
-    leaves it out): it is zeroed, as in a fresh ``MjData``, so that the result does not depend on what ``d`` did
-    before (reused as it was, it moved the differences by up to 3e-12, which the polish's iterations amplified)."""
+def force_response(humanoid: Humanoid, d: mujoco.MjData, state: np.ndarray, target: np.ndarray, force: np.ndarray,
+                   dof: int) -> np.ndarray:  # fmt: skip
+    """d(next state's tangent coordinates) / d(generalised force at ``dof``) over one control step from full state
+    ``state`` (nstate,) with PD targets ``target`` (nu,) and external force ``force`` (nv,) held, central
+    differences, on the scratch data ``d``. Shape: (2 nv,). The solver's warm start is not part of ``state``
+    (``mjSTATE_FULLPHYSICS`` leaves it out): it is zeroed, as in a fresh ``MjData``, so that the result does not
+    depend on what ``d`` did before (reused as it was, it moved the differences by up to 3e-12, which the polish's
+    iterations amplified)."""
     m = humanoid.model
     ends = []
     for sign in (1.0, -1.0):

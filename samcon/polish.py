@@ -31,13 +31,8 @@ optimises the targets of every frame together from the simulator's own derivativ
    loop ``A + B K``: a window is then judged by how the LQR carries on from where it leaves the character, which is
    how the next window's new frames start (:class:`Follow`).
 
-6. **A couple as a control** (``couple``, :class:`Couple`, session 25): a couple on the root (the free joint's
-   rotational dofs) joins the targets as three more controls, optimised with them at the price ``weight`` x its
-   squared norm per frame; ``samcon.assist --then-couple`` polishes with a rising weight and then without it, so that
-   the help a path was found with is taken away by the optimiser, path kept, rather than by a new search.
-
-A clip whose reference needs force no contact gives (``samcon.feasibility``) keeps an error there whatever the
-targets; iLQR spends it where it costs least over the window instead of where the greedy search left it.
+A clip whose reference needs force no contact can give keeps an error there whatever the targets; iLQR spends it
+where it costs least over the window instead of where the greedy search left it.
 """
 
 from __future__ import annotations
@@ -56,8 +51,8 @@ from common.character.state import CharacterState
 from common.sim.sim import BatchedSim
 from samcon.config import CostConfig, LqrConfig, PolishConfig
 from samcon.cost import tracking_cost
-from samcon.lqr import _force_response, linearise, nominal_states, riccati, state_weights
-from samcon.search import AssistLaw, HeldForces
+from samcon.lqr import linearise, nominal_states, riccati, state_weights
+from samcon.search import ExternalForce
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 Step = tuple[np.ndarray, np.ndarray, float, float]
@@ -73,36 +68,6 @@ class PathCost:
     total: float
     body: np.ndarray  # (F,) mean squared body position error (m^2) after each step
     fell_at: int  # first frame (1-based step count) the head rule fired, -1: never
-
-
-ROOT_TURN = slice(3, 6)  # the free joint's rotational dofs: a couple on the root, in the root's frame
-COUPLE_UNIT = 100.0  # N m: the iLQR's unit of a couple control, near what a radian of a PD target gives (session 25)
-
-
-@dataclass
-class Couple:
-    """A couple on the root as three more controls of the polish (``polish(couple=...)``): per clip frame a torque on
-    the free joint's rotational dofs (root frame, N m, held over the step, as ``samcon.assist``'s law applies its
-    own), optimised with the targets, each frame's costing ``weight`` x its squared norm. Raising the weight from one
-    polish to the next takes the help away inside the optimiser, which keeps the path while it moves the work to
-    the targets (session 25).
-
-    Attributes:
-        values: Shape: (F, 3) for the clip's frames 0..F-1.
-        weight: Per (N m)^2 per frame, in the units of the polish's cost (``polish.body`` x m^2).
-    """
-
-    values: np.ndarray
-    weight: float
-
-    def law(self, nv: int) -> HeldForces:
-        """The couple as a held generalised force (F, nv), 0 but at the root's rotational dofs."""
-        forces = np.zeros((len(self.values), nv))
-        forces[:, ROOT_TURN] = self.values
-        return HeldForces(forces)
-
-    def cost(self, values: np.ndarray) -> float:
-        return float(self.weight * np.sum(values**2))
 
 
 class BodyCost:
@@ -166,29 +131,6 @@ class BodyCost:
         return grad, hess
 
 
-def couple_columns(humanoid: Humanoid, states: np.ndarray, targets: np.ndarray, forces: np.ndarray,
-                   steps: int | None = None) -> np.ndarray:  # fmt: skip
-    """d(next state's tangent coordinates) / d(couple) of each step, one column per rotational dof of the root: the
-    columns a :class:`Couple` adds to B (central differences of the step, ``samcon.lqr``'s ``_force_response``).
-
-    Args:
-        states: Full states of the path. Shape: (F + 1, nstate).
-        targets: Its targets. Shape: (F, nu).
-        forces: The generalised force held over each step (the couple's). Shape: (F, nv).
-        steps: Only the first ``steps`` steps (the rest stay 0; None: all).
-
-    Returns:
-        Shape: (F, 2 nv, 3), per N m.
-    """
-    m = humanoid.model
-    scratch = mujoco.MjData(m)
-    out = np.zeros((len(targets), 2 * m.nv, 3))
-    for t in range(len(targets) if steps is None else min(steps, len(targets))):
-        for j, dof in enumerate(range(m.nv)[ROOT_TURN]):
-            out[t, :, j] = _force_response(humanoid, scratch, states[t], targets[t], forces[t], dof)
-    return out
-
-
 def backward_pass(a: np.ndarray, b: np.ndarray, lx: np.ndarray, lxx: np.ndarray, lu: np.ndarray, luu: float,
                   mu: float, free: int | None = None) -> Step | None:  # fmt: skip
     """iLQR's backward pass for ``x_{t+1} = A_t x_t + B_t u_t``, cost ``sum_t l_u(u_t) + l_x(x_{t+1})``.
@@ -250,27 +192,22 @@ def deviation(m: mujoco.MjModel, ref: np.ndarray, state: np.ndarray, dq: np.ndar
 
 
 def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targets: np.ndarray, k: np.ndarray,
-                 gain: np.ndarray, alphas: np.ndarray, limit: float | np.ndarray = np.inf, law: AssistLaw | None = None,
-                 first: int = 0,
-                 couple: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+                 gain: np.ndarray, alphas: np.ndarray, limit: float | np.ndarray = np.inf,
+                 force: ExternalForce | None = None,
+                 first: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """Rolls out ``u_t + alpha k_t + clip(K_t dx_t, +-limit)`` for every alpha in one batch from ``start``, dx the
-    deviation from ``states`` (with ``law``, the generalised force it gives every rollout at every step too, ``start``
-    at clip frame ``first``). ``limit``: one for all steps or one per step (F,). With ``couple`` (F, 3), a root
-    couple (:class:`Couple`) is three more controls: u_t is ``targets[t]`` and ``couple[t]`` (k and K have nu + 3
-    rows; the limit clips the targets' feedback only).
+    deviation from ``states`` (with ``force``, the external force it gives every rollout at every step too,
+    ``start`` at clip frame ``first``). ``limit``: one for all steps or one per step (F,).
 
     Returns:
-        states (A, F + 1, nstate), the controls applied (A, F, nu, or nu + 3 with ``couple``) and which rollouts blew
-        up (A,).
+        states (A, F + 1, nstate), the targets applied (A, F, nu) and which rollouts blew up (A,).
     """
     m = humanoid.model
-    nv, nu = m.nv, m.nu
     n, frames = len(alphas), len(targets)
-    sim = BatchedSim(humanoid, n, threads=0, applied=law is not None or couple is not None)
+    sim = BatchedSim(humanoid, n, threads=0, applied=force is not None)
     out = np.zeros((n, frames + 1, len(start)))
-    nominal = targets if couple is None else np.concatenate([targets, couple], axis=1)
-    applied = np.zeros((n, frames, nominal.shape[1]))
-    dq = np.zeros(nv)
+    applied = np.zeros((n, frames, targets.shape[1]))
+    dq = np.zeros(m.nv)
     blown = np.zeros(n, dtype=bool)
     limit = np.broadcast_to(np.asarray(limit, dtype=np.float64), (frames,))
     try:
@@ -279,14 +216,8 @@ def forward_pass(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targ
         for t in range(frames):
             for i in range(n):
                 dx = deviation(m, states[t], sim.state[i], dq)
-                feedback = gain[t] @ dx
-                feedback[:nu] = np.clip(feedback[:nu], -limit[t], limit[t])
-                applied[i, t] = nominal[t] + alphas[i] * k[t] + feedback
-            force = None if law is None else law(first + t, sim.qpos, sim.qvel)
-            if couple is not None:
-                force = np.zeros((n, nv)) if force is None else np.array(np.broadcast_to(force, (n, nv)))
-                force[:, ROOT_TURN] += applied[:, t, nu:]
-            blown |= sim.step(applied[:, t, :nu], force)
+                applied[i, t] = targets[t] + alphas[i] * k[t] + np.clip(gain[t] @ dx, -limit[t], limit[t])
+            blown |= sim.step(applied[:, t], None if force is None else force(first + t, sim.qpos, sim.qvel))
             sim.state[blown] = start  # a blown-up rollout is dropped; its state only has to stay finite
             out[:, t + 1] = sim.state
     finally:
@@ -317,11 +248,11 @@ class Follow:
 
 def window_rollout(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, targets: np.ndarray, k: np.ndarray,
                    gain: np.ndarray, alphas: np.ndarray, first: int, free: int, follow: Follow | None,
-                   law: AssistLaw | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+                   force: ExternalForce | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """:func:`forward_pass` of a window whose first ``free`` steps take ``targets + alpha k + K dx`` and whose
     later ones (its look-ahead) hold ``targets`` (``follow`` None) or are played by ``follow``."""
     if follow is None or free >= len(targets):
-        return forward_pass(humanoid, start, states, targets, k, gain, alphas, law=law, first=first)
+        return forward_pass(humanoid, start, states, targets, k, gain, alphas, force=force, first=first)
     frames = len(targets)
     later = slice(first + free, first + frames)
     states, targets, k, gain = states.copy(), targets.copy(), k.copy(), gain.copy()
@@ -331,39 +262,33 @@ def window_rollout(humanoid: Humanoid, start: np.ndarray, states: np.ndarray, ta
     gain[free:] = follow.gain[later]
     limit = np.full(frames, np.inf)
     limit[free:] = follow.limit
-    return forward_pass(humanoid, start, states, targets, k, gain, alphas, limit, law, first)
+    return forward_pass(humanoid, start, states, targets, k, gain, alphas, limit, force, first)
 
 
 def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.ndarray, first: int,
           cfg: PolishConfig, label: str, log: TextIO | None, free: int | None = None,
-          law: AssistLaw | None = None, follow: Follow | None = None, couple: Couple | None = None,
-          ) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]]]:  # fmt: skip
+          force: ExternalForce | None = None,
+          follow: Follow | None = None) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]]]:  # fmt: skip
     """iLQR on the path that plays ``targets`` (F, nu) from ``start`` at clip frame ``first``, changing the
-    targets of its first ``free`` steps only (None: all); with ``law``, the generalised force it gives at every step
+    targets of its first ``free`` steps only (None: all); with ``force``, the external force it gives at every step
     too (in the linearisation and every rollout). With ``follow``, the steps from ``free`` on are played by it (their
     targets depend on the state; the linearisation's closed loop ``A + B K`` carries the window's changes through
-    them), so that a window is judged by how that path's LQR carries on from where it leaves the character. With
-    ``couple`` (no ``law``, no ``follow``), its values at these frames are three more controls, optimised with the
-    targets (:class:`Couple`).
+    them), so that a window is judged by how that path's LQR carries on from where it leaves the character.
 
     Returns:
-        Its controls (those applied: targets (F, nu), with ``couple`` followed by its values, (F, nu + 3)) and states
-        (F + 1, nstate) at the end, and per accepted iteration the cost and step.
+        Its targets (those applied, (F, nu)) and states (F + 1, nstate) at the end, and per accepted iteration the
+        cost and step.
     """
-    if couple is not None:
-        if law is not None or follow is not None:
-            raise ValueError("a root couple as a control takes no other law and no polish.follow")
-        return _ilqr_couple(humanoid, cost, start, targets, first, cfg, label, log, free, couple)
     t0 = time.perf_counter()
     frames = len(targets)
     free = frames if free is None else free
     follow = follow if free < frames else None
     if follow is None:
-        states = nominal_states(humanoid, start, targets, law, first)
+        states = nominal_states(humanoid, start, targets, force, first)
     else:
         zero, anywhere = np.zeros((frames, humanoid.model.nu, 2 * humanoid.nv)), np.repeat(start[None], frames + 1, 0)
         roll, applied, _ = window_rollout(humanoid, start, anywhere, targets, np.zeros_like(targets), zero,
-                                          np.ones(1), first, free, follow, law)  # fmt: skip
+                                          np.ones(1), first, free, follow, force)  # fmt: skip
         states, targets = roll[0], applied[0]
     current = cost.path_cost(states, targets, first)
     history: list[dict[str, Any]] = [{"iteration": 0, "cost": current.total}]
@@ -371,7 +296,7 @@ def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nda
     alphas = np.asarray(cfg.alphas, dtype=np.float64)
     ref_targets = cost.ref_targets[first : first + frames]
     for it in range(1, cfg.iterations + 1):
-        a, b = linearise(humanoid, states, targets, cfg.eps, law, first)
+        a, b = linearise(humanoid, states, targets, cfg.eps, force, first)
         derivs = [cost.state_derivatives(states[t + 1], first + t + 1) for t in range(frames)]
         lx, lxx = np.stack([g for g, _ in derivs]), np.stack([h for _, h in derivs])
         lu = 2.0 * cfg.control * (targets - ref_targets)
@@ -388,24 +313,24 @@ def _ilqr(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nda
                 continue
             k, gain, d1, d2 = bp
             roll, applied, blown = window_rollout(humanoid, start, states, targets, k, gain, alphas, first, free,
-                                                  follow, law)  # fmt: skip
+                                                  follow, force)  # fmt: skip
             trials = [cost.path_cost(roll[i], applied[i], first) for i in range(len(alphas))]
             if cfg.verbose and log is not None:
                 print(f"  mu {mu:.3g} expected {d1 + d2:.4g} trials " + " ".join(
                     f"{c.total:.4g}{'b' if blown[i] else ''}{'f' if c.fell_at >= 0 else ''}"
                     for i, c in enumerate(trials)), file=log, flush=True)  # fmt: skip
-            best = _cheaper(trials, blown, current)
+            best = cheaper(trials, blown, current)
             if best is not None:
                 states, targets, current = roll[best], applied[best], trials[best]
-                accepted, mu = True, _accepted(cfg, history, it, current, float(alphas[best]), d1, d2, mu)
+                accepted, mu = True, accept_step(cfg, history, it, current, float(alphas[best]), d1, d2, mu)
             else:
                 mu *= cfg.mu_factor
-        if _stop(cfg, history, current, accepted, label, it, t0, log):
+        if stops(cfg, history, current, accepted, label, it, t0, log):
             break
     return targets, states, history
 
 
-def _cheaper(trials: list[PathCost], blown: np.ndarray, current: PathCost) -> int | None:
+def cheaper(trials: list[PathCost], blown: np.ndarray, current: PathCost) -> int | None:
     """The cheapest rollout that did not blow up, is finite, does not fall where ``current`` did not, and is cheaper
     than ``current``; None if there is none."""
     ok = [i for i, c in enumerate(trials)
@@ -414,8 +339,8 @@ def _cheaper(trials: list[PathCost], blown: np.ndarray, current: PathCost) -> in
     return best if best is not None and trials[best].total < current.total else None
 
 
-def _accepted(cfg: PolishConfig, history: list[dict[str, Any]], it: int, current: PathCost, alpha: float, d1: float,
-              d2: float, mu: float) -> float:  # fmt: skip
+def accept_step(cfg: PolishConfig, history: list[dict[str, Any]], it: int, current: PathCost, alpha: float,
+                d1: float, d2: float, mu: float) -> float:  # fmt: skip
     """Records an accepted step in ``history``; returns the lowered regularisation."""
     mu = max(cfg.mu_min, mu / cfg.mu_factor)
     history.append({"iteration": it, "cost": current.total, "alpha": alpha, "expected": alpha * d1 + alpha**2 * d2,
@@ -423,7 +348,7 @@ def _accepted(cfg: PolishConfig, history: list[dict[str, Any]], it: int, current
     return mu
 
 
-def _stop(cfg: PolishConfig, history: list[dict[str, Any]], current: PathCost, accepted: bool, label: str, it: int,
+def stops(cfg: PolishConfig, history: list[dict[str, Any]], current: PathCost, accepted: bool, label: str, it: int,
           t0: float, log: TextIO | None) -> bool:  # fmt: skip
     """After an iteration: logs it (verbose) and says whether the iLQR stops (no step, or too small a gain)."""
     if cfg.verbose and log is not None:
@@ -434,73 +359,10 @@ def _stop(cfg: PolishConfig, history: list[dict[str, Any]], current: PathCost, a
     return len(history) > 2 and history[-2]["cost"] - current.total < cfg.tolerance * history[-2]["cost"]
 
 
-def _ilqr_couple(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.ndarray, first: int,
-                 cfg: PolishConfig, label: str, log: TextIO | None, free: int | None,
-                 couple: Couple) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]]]:  # fmt: skip
-    """:func:`_ilqr` with the root couple as three more controls: B gains the next state's response to the couple
-    (central differences, as ``samcon.lqr`` takes a law's), the control cost its weight. Returns the controls
-    (F, nu + 3), the states and the history.
-
-    The backward pass sees the couple in units of :data:`COUPLE_UNIT`: its regularisation ``mu`` is added to every
-    control alike, and in N m (a 1 N m couple moves the character a thousandth of what a radian of a target does) it
-    froze the couple (measured on the test's push: 20 N m left at 19.7)."""
-    t0 = time.perf_counter()
-    m = humanoid.model
-    nu, nv, frames = m.nu, m.nv, len(targets)
-    free = frames if free is None else free
-    values = couple.values.copy()  # every clip frame's couple; this window's are changed in place
-    window = slice(first, first + frames)
-
-    def total(states: np.ndarray, controls: np.ndarray) -> PathCost:
-        got = cost.path_cost(states, controls[:, :nu], first)
-        return replace(got, total=got.total + couple.cost(controls[:, nu:]))
-
-    controls = np.concatenate([targets, values[window]], axis=1)
-    states = nominal_states(humanoid, start, targets, replace(couple, values=values).law(nv), first)
-    current = total(states, controls)
-    history: list[dict[str, Any]] = [{"iteration": 0, "cost": current.total}]
-    mu = cfg.mu_init
-    alphas = np.asarray(cfg.alphas, dtype=np.float64)
-    weights = np.concatenate([np.full(nu, cfg.control), np.full(3, couple.weight)])
-    unit = np.concatenate([np.ones(nu), np.full(3, COUPLE_UNIT)])  # controls in the backward pass's units: u / unit
-    reference = np.concatenate([cost.ref_targets[window], np.zeros((frames, 3))], axis=1)
-    for it in range(1, cfg.iterations + 1):
-        values[window] = controls[:, nu:]
-        held = replace(couple, values=values).law(nv)
-        a, b = linearise(humanoid, states, controls[:, :nu], cfg.eps, held, first)
-        # the later steps' controls do not change: their columns are not used
-        turn = couple_columns(humanoid, states, controls[:, :nu], held.forces[window], free)
-        b = np.concatenate([b, turn], axis=2) * unit
-        derivs = [cost.state_derivatives(states[t + 1], first + t + 1) for t in range(frames)]
-        lx, lxx = np.stack([g for g, _ in derivs]), np.stack([h for _, h in derivs])
-        lu = 2.0 * weights * (controls - reference) * unit
-        accepted = False
-        while not accepted and mu <= cfg.mu_max:
-            bp = backward_pass(a, b, lx, lxx, lu, 2.0 * weights * unit**2, mu, free)
-            if bp is None:
-                mu *= cfg.mu_factor
-                continue
-            k, gain, d1, d2 = bp
-            k, gain = k * unit, gain * unit[:, None]
-            roll, applied, blown = forward_pass(humanoid, start, states, controls[:, :nu], k, gain, alphas,
-                                                first=first, couple=controls[:, nu:])  # fmt: skip
-            trials = [total(roll[i], applied[i]) for i in range(len(alphas))]
-            best = _cheaper(trials, blown, current)
-            if best is not None:
-                states, controls, current = roll[best], applied[best], trials[best]
-                accepted, mu = True, _accepted(cfg, history, it, current, float(alphas[best]), d1, d2, mu)
-            else:
-                mu *= cfg.mu_factor
-        if _stop(cfg, history, current, accepted, label, it, t0, log):
-            break
-    return controls, states, history
-
-
 def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: CharacterState,
            ref_targets: np.ndarray, cfg: PolishConfig, fall_head_error: float, name: str = "",
            log: TextIO | None = None, lqr: LqrConfig | None = None, searcher: Searcher | None = None,
-           law: AssistLaw | None = None,
-           couple: Couple | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
+           force: ExternalForce | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
     """iLQR from the open-loop path ``targets`` (F, nu) played from ``start`` at the clip's frame 0 (see the
     module docstring): over the whole path at once (``cfg.window`` 0), or window by window, each ``cfg.window``
     frames from the path's current state at its first frame, the next ``cfg.stride`` frames later; each window's
@@ -512,30 +374,22 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
     ``u*_t + clip(K_t (x_t - x*_t))``; with ``cfg.follow`` each window's look-ahead is played by it as well. With
     ``searcher`` (which searches a stretch of frames from a state, as
     SAMCON does, and returns its targets, or None if it fell) the frames after the previous window's look-ahead are
-    searched anew from where that look-ahead left the character (the LQR start where it fell). With ``law`` (root
-    forces, :mod:`samcon.assist`) every step of every rollout also gets the generalised force it gives, and the
-    linearisation counts its dependence on the state. With ``couple`` (no ``law``), a root couple is optimised with
-    the targets at the price of its weight (:class:`Couple`); the summary's ``couple`` holds the polished path's.
+    searched anew from where that look-ahead left the character (the LQR start where it fell). With ``force`` (an
+    external force, :class:`samcon.search.ExternalForce`) every step of every rollout also gets the generalised force
+    it gives, and the linearisation counts its dependence on the state.
 
     Returns:
         The polished targets (F, nu) (``targets`` itself if the polished path costs more or falls where it did
         not) and a summary: the cost and body error before and after, per window its iterations, seconds.
     """
-    if couple is not None and (law is not None or searcher is not None or any(map(cfg.follows, range(cfg.passes)))):
-        raise ValueError("a root couple as a control takes no other law, no polish.search and no polish.follow")
     t0 = time.perf_counter()
     cost = BodyCost(humanoid, cfg, ref, ref_targets, fall_head_error)
 
-    def replayed(path: np.ndarray, values: np.ndarray | None) -> PathCost:  # replayed from the clip's start, judged
-        if couple is None:
-            return cost.path_cost(nominal_states(humanoid, start, path, law), path, 0)
-        got = cost.path_cost(nominal_states(humanoid, start, path, replace(couple, values=values).law(humanoid.nv)),
-                             path, 0)  # fmt: skip
-        return replace(got, total=got.total + couple.cost(values))
+    def replayed(path: np.ndarray) -> PathCost:  # replayed from the clip's start, judged
+        return cost.path_cost(nominal_states(humanoid, start, path, force), path, 0)
 
     try:
-        best_values = None if couple is None else couple.values
-        before = replayed(targets, best_values)
+        before = replayed(targets)
         best, after, windows, passes = targets, before, [], []
         for p in range(cfg.passes):
             if p and not passes[-1]["kept"] and searcher is None and cfg.for_pass(p) == cfg.for_pass(p - 1):
@@ -543,15 +397,14 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
                 passes.append({"cost": passes[-1]["cost"], "fell_at": passes[-1]["fell_at"], "kept": False,
                                "repeat_skipped": True})  # fmt: skip
                 continue
-            held = None if couple is None else replace(couple, values=best_values)
-            new, pass_windows, values = _sweep(humanoid, cost, start, best, cfg.for_pass(p), lqr, searcher,
-                                               f"{name} pass {p + 1}", log, t0, law, held)  # fmt: skip
+            new, pass_windows = _sweep(humanoid, cost, start, best, cfg.for_pass(p), lqr, searcher,
+                                       f"{name} pass {p + 1}", log, t0, force)  # fmt: skip
             windows += pass_windows
-            result = replayed(new, values)
+            result = replayed(new)
             better = result.total < after.total and (result.fell_at < 0 or after.fell_at >= 0)
             passes.append({"cost": result.total, "fell_at": result.fell_at, "kept": better})
             if better:
-                best, after, best_values = new, result, values
+                best, after = new, result
             if log is not None:
                 print(f"{name}: polish pass {p + 1}/{cfg.passes}: cost {result.total:.4g}"
                       f"{'' if better else ' (dearer or fell: dropped)'}", file=log, flush=True)  # fmt: skip
@@ -559,13 +412,10 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
             # Then the whole path at once from the best so far: every step lowers its cost (none falls where it did
             # not), so this never undoes the windows' gain.
             whole, _, hist = _ilqr(humanoid, cost, start, best, 0, replace(cfg, iterations=cfg.whole_iterations),
-                                   f"{name} whole path", log, law=law,
-                                   couple=None if couple is None else replace(couple, values=best_values))  # fmt: skip
+                                   f"{name} whole path", log, force=force)  # fmt: skip
             passes.append({"whole_steps": len(hist) - 1, "cost": hist[-1]["cost"], "kept": len(hist) > 1})
             if len(hist) > 1:
-                if couple is not None:
-                    whole, best_values = whole[:, : humanoid.nu], whole[:, humanoid.nu :]
-                best, after = whole, replayed(whole, best_values)
+                best, after = whole, replayed(whole)
             if log is not None:
                 print(f"{name}: whole path, {len(hist) - 1} steps: cost {after.total:.4g}", file=log, flush=True)
         worse = best is targets
@@ -577,8 +427,6 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
         "body_rms_mm_after": 1000 * float(np.sqrt(after.body.mean())),
         "passes": passes, "windows": windows, "seconds": time.perf_counter() - t0,
     }  # fmt: skip
-    if couple is not None:
-        summary["couple"] = best_values
     if log is not None:
         print(f"{name}: polished, cost {before.total:.4g} -> {after.total:.4g}, body rms "
               f"{summary['body_rms_mm_before']:.1f} -> {summary['body_rms_mm_after']:.1f} mm"
@@ -587,41 +435,40 @@ def polish(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, ref: Char
     return best, summary
 
 
+def tracking_gain(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray, name: str,
+                  log: TextIO | None) -> np.ndarray | None:  # fmt: skip
+    """The time-varying LQR gains (F, nu, n) that track a path from its linearisation ``a`` (F, n, n), ``b``
+    (F, n, nu) with state cost ``q`` (n, n) (at the end too) and control cost ``r`` (nu, nu); None, logged, where the
+    Riccati recursion is singular or not finite (a path that went through a blow-up has no usable LQR)."""
+    try:
+        gain = riccati(a, b, q, r, q)[0]
+    except np.linalg.LinAlgError:
+        gain = None
+    if gain is not None and not np.isfinite(gain).all():
+        gain = None
+    if gain is None and log is not None:
+        print(f"{name}: the path's LQR is singular or not finite; new frames start from its targets alone", file=log,
+              flush=True)  # fmt: skip
+    return gain
+
+
 def _sweep(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.ndarray, cfg: PolishConfig,
            lqr: LqrConfig | None, searcher: Searcher | None, name: str, log: TextIO | None, t0: float,
-           law: AssistLaw | None = None, couple: Couple | None = None,
-           ) -> tuple[np.ndarray, list, np.ndarray | None]:  # fmt: skip
-    """One pass of windows over the path (see :func:`polish`): its new targets, per window its iterations, and with
-    ``couple`` its new values (F, 3) (else None)."""
+           force: ExternalForce | None = None) -> tuple[np.ndarray, list]:  # fmt: skip
+    """One pass of windows over the path (see :func:`polish`): its new targets and per window its iterations."""
     frames = len(targets)
-    values = None if couple is None else couple.values.copy()
-    if couple is not None:
-        law = replace(couple, values=values).law(humanoid.nv)  # the current couple, held, for what is not optimised
-    states = nominal_states(humanoid, start, targets, law)
+    states = nominal_states(humanoid, start, targets, force)
     new = targets.copy()
     window = cfg.window or frames
     stride = cfg.stride or window
     firsts = list(range(0, max(1, frames - window + stride), stride))
     windows = []
     searched, track = states.copy(), None
-    nu = humanoid.model.nu
     if lqr is not None and cfg.window:
-        a, b = linearise(humanoid, searched, targets, lqr.eps, law)
-        r = lqr.control * np.eye(nu)
-        if couple is not None:  # the couple is a control of the path's LQR too, 100 N m priced as a target radian
-            b = np.concatenate([b, couple_columns(humanoid, searched, targets, law.forces)], axis=2)
-            r = np.diag(np.concatenate([np.full(nu, lqr.control), np.full(3, lqr.control / COUPLE_UNIT**2)]))
-        q = np.diag(state_weights(humanoid, lqr))
-        try:  # a path that went through a blow-up (an earlier cap's path under a smaller one) has no usable LQR
-            track = riccati(a, b, q, r, q)[0]
-        except np.linalg.LinAlgError:
-            track = None
-        if track is not None and not np.isfinite(track).all():
-            track = None
-        if track is None and log is not None:
-            print(f"{name}: the path's LQR is singular or not finite; new frames start from its targets alone",
-                  file=log, flush=True)  # fmt: skip
-    follow = None if track is None or couple is not None else Follow(searched, targets, track, lqr.limit)
+        a, b = linearise(humanoid, searched, targets, lqr.eps, force)
+        track = tracking_gain(a, b, np.diag(state_weights(humanoid, lqr)), lqr.control * np.eye(humanoid.model.nu),
+                              name, log)  # fmt: skip
+    follow = None if track is None else Follow(searched, targets, track, lqr.limit)
     changed = 0  # frames before this one have been a window's to change
     played = 0  # frames before this one have been played in a window's cost
     for j, s in enumerate(firsts):
@@ -636,28 +483,19 @@ def _sweep(humanoid: Humanoid, cost: BodyCost, start: np.ndarray, targets: np.nd
             gain[max(0, changed - s) :] = track[max(s, changed) : tail]
             unchanged = (np.arange(s, tail) >= changed)[:, None]
             base = np.where(unchanged, targets[s:tail], new[s:tail])
-            turn = None if couple is None else np.where(unchanged, couple.values[s:tail], values[s:tail])
             _, applied, blown = forward_pass(humanoid, states[s], searched[s : tail + 1], base,
-                                             np.zeros(gain.shape[:2]), gain, np.zeros(1), lqr.limit,
-                                             None if couple is not None else law, s, turn)  # fmt: skip
+                                             np.zeros(gain.shape[:2]), gain, np.zeros(1), lqr.limit, force,
+                                             s)  # fmt: skip
             if not blown[0]:
-                init = applied[0, :, :nu]
-                if couple is not None:  # the couple the LQR gave these frames is where the window's iLQR starts
-                    values[s:tail] = applied[0, :, nu:]
+                init = applied[0]
         label = f"{name} frames {s}-{e}"
-        if couple is None:
-            got, got_states, hist = _ilqr(humanoid, cost, states[s], init, s, cfg, label, log, free=e - s, law=law,
-                                          follow=follow if cfg.follow else None)  # fmt: skip
-            new[s:tail], states[s : tail + 1] = got, got_states
-        else:
-            got, got_states, hist = _ilqr(humanoid, cost, states[s], init, s, cfg, label, log, free=e - s,
-                                          couple=replace(couple, values=values))  # fmt: skip
-            new[s:tail], values[s:tail], states[s : tail + 1] = got[:, : humanoid.nu], got[:, humanoid.nu :], got_states
-            law = replace(couple, values=values).law(humanoid.nv)
+        got, got_states, hist = _ilqr(humanoid, cost, states[s], init, s, cfg, label, log, free=e - s, force=force,
+                                      follow=follow if cfg.follow else None)  # fmt: skip
+        new[s:tail], states[s : tail + 1] = got, got_states
         changed = max(changed, e)
         played = max(played, tail)
         windows.append({"first": s, "end": e, "iterations": hist, "searched": found is not None})
         if log is not None:
             print(f"{label} ({j + 1}/{len(firsts)}): cost {hist[0]['cost']:.4g} -> {hist[-1]['cost']:.4g} in "
                   f"{len(hist) - 1} steps, {time.perf_counter() - t0:.0f} s", file=log, flush=True)  # fmt: skip
-    return new, windows, values
+    return new, windows

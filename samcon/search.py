@@ -1,17 +1,17 @@
 """SAMCON: sampling-based tracking of one clip, segment by segment (Liu et al. 2010; the 2015 distribution update).
 
 A clip's first ``F`` control steps are cut into segments of ``segment_frames`` steps. For each segment, from the
-saved full MuJoCo states of the ``keep`` samples kept at the end of the previous one (the clip's start state for
-the first), ``samples`` candidates are simulated, one character each, in one batched rollout: candidate i starts
-from kept state ``i mod keep`` and holds the PD targets ``reference next-frame hinge angles + offset_i`` for the
-whole segment, ``offset_i = guide(s_i) + mean + sigma * z_i`` with z standard normal and s the kept state's
-feedback features (``guide`` is 0 unless the search is re-run around linear feedback policies; with a ``centre``
-path, e.g. one made with root help, its targets replace the reference's angles). Each candidate is
-scored by the tracking cost averaged over the segment's frames. After each of ``iterations`` rounds, mean and sigma
-(one per actuator, CMA-style diagonal) move to the log-weighted ``elite`` of the round; the best ``keep`` of all
-rounds are kept. When even the cheapest kept sample has fallen (the evaluator's head rule), the search goes back
-``backtrack_segments`` segments and searches them again with more rounds. At the end, the lowest-cost kept sample
-is traced back through its parents: the open-loop trajectory.
+saved full MuJoCo states of the ``keep`` samples kept at the end of the previous one (the clip's start state for the
+first), ``samples`` candidates are simulated, one character each, in one batched rollout: candidate i starts from
+kept state ``i mod keep`` and holds the PD targets ``reference next-frame hinge angles + offset_i`` for the whole
+segment, ``offset_i = guide(s_i) + mean + sigma * z_i`` with z standard normal and s the kept state's feedback
+features (``guide`` is 0 unless the search is re-run around linear feedback policies; with a ``centre`` path its
+targets replace the reference's angles). Each candidate is scored by the tracking cost averaged over the segment's
+frames. After each of ``iterations`` rounds, mean and sigma (one per actuator, CMA-style diagonal) move to the
+log-weighted ``elite`` of the round; the best ``keep`` of all rounds are kept. When even the cheapest kept sample
+has fallen (the evaluator's head rule), the search goes back ``backtrack_segments`` segments and searches them again
+with more rounds. At the end, the lowest-cost kept sample is traced back through its parents: the open-loop
+trajectory.
 
 The physics is :class:`common.sim.sim.BatchedSim`, stepped one control step per rollout like the gym, so that the
 trajectory replays bit-exactly in the shared evaluator from the same start state (MuJoCo's solver warm start is
@@ -49,32 +49,22 @@ Guide = Callable[[int, np.ndarray], np.ndarray]
 """(segment k, feedback features (n, D)) -> base offsets (n, nu)."""
 
 
-class AssistLaw(Protocol):
-    """A generalised force from the state: ``law(f, qpos (n, nq), qvel (n, nv))`` at frame f is the force held over
-    step f -> f + 1, (n, nv); ``law.jacobian(f, qpos, qvel)`` its derivative with respect to the state's tangent
-    coordinates (MuJoCo's: ``mj_differentiatePos`` of qpos, then qvel), (n, nv, 2 nv)."""
+class ExternalForce(Protocol):
+    """An external generalised force on the character (MuJoCo's ``qfrc_applied``, see
+    :class:`common.sim.sim.BatchedSim`), a function of the clip frame and the state, held over each control step like
+    the PD targets. The tracker itself applies none (the gym and the evaluator have no such force); the search, the
+    replay, the linearisation and the polish take one so that a path can be made and judged under it. A path made
+    with one is still open loop: replayed with the same force from the same start it passes through the same states.
+
+    ``force(f, qpos (n, nq), qvel (n, nv))`` is the force held over step f -> f + 1, (n, nv);
+    ``force.jacobian(f, qpos, qvel)`` its derivative with respect to the state's tangent coordinates (MuJoCo's:
+    ``mj_differentiatePos`` of qpos, then qvel), (n, nv, 2 nv), which the linearisation of :mod:`samcon.lqr` adds
+    to the dynamics' own.
+    """
 
     def __call__(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray: ...
 
     def jacobian(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray: ...
-
-
-class HeldForces:
-    """An :class:`AssistLaw` that gives recorded forces (F, nv) whatever the state: ``forces[f]`` at frame f."""
-
-    def __init__(self, forces: np.ndarray) -> None:
-        self.forces = np.asarray(forces, dtype=np.float64)
-
-    def __call__(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
-        return np.tile(self.forces[frame], (len(qpos), 1))
-
-    def jacobian(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
-        nv = self.forces.shape[1]
-        return np.zeros((len(qpos), nv, 2 * nv))
-
-
-Assist = Callable[[MotionLibrary, int, int], AssistLaw]
-"""(library, clip, steps) -> the law of a clip's first ``steps`` steps (:class:`samcon.assist.RootAssist`)."""
 
 Progress = Callable[[int, int, float, float, "int | None"], None]
 """(segment k, segments, cost of the best kept sample, seconds so far, the segment a backtrack returns to or None)."""
@@ -113,8 +103,6 @@ class Trajectory:
             states are the polished path's.
         visits: With ``feedback.visit_iterations`` > 0, per round: the share of its episodes that fell before the
             round's searches, and how many searches it ran.
-        forces: With an assist (:mod:`samcon.assist`), the generalised force it gave at every control step of the
-            path (a replay that applies these reaches the same states). Shape: (F - bounds[0], nv).
     """
 
     clip: str
@@ -139,7 +127,6 @@ class Trajectory:
     visits: list[dict[str, Any]] | None = None
     lqr: dict[str, Any] | None = None
     polish: dict[str, Any] | None = None
-    forces: np.ndarray | None = None
 
     @property
     def frames(self) -> int:
@@ -150,6 +137,13 @@ class Trajectory:
 def horizon(library: MotionLibrary, clip: int, max_frames: int) -> int:
     """Control steps the shared evaluator plays from the clip's start (loop clips: max_frames)."""
     return int(max_frames if library.loop[clip] else min(max_frames, library.num_frames[clip] - 1))
+
+
+def searched_frames(library: MotionLibrary, clip: int, frames: int, lookahead: int) -> int:
+    """Control steps a search of a clip's first ``frames`` plays from its start, ``lookahead`` more past the last
+    segment included (a one-shot clip: at most to its last frame); an external force must cover as many."""
+    beyond = lookahead if library.loop[clip] else min(lookahead, max(0, library.num_frames[clip] - 1 - frames))
+    return int(frames + beyond)
 
 
 def start_state(library: MotionLibrary, humanoid: Humanoid, clip: int, rsi_lift: bool = False,
@@ -204,7 +198,7 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
            fresh_states: int = 1, fresh_noise: tuple[float, float] = (0.0, 0.0),
            rsi_lift: bool = False, progress: Progress | None = None, start_frame: int = 0,
            end_frame: int | None = None, cost_limit: float = np.inf,
-           start: np.ndarray | None = None, assist: Assist | None = None,
+           start: np.ndarray | None = None, force: ExternalForce | None = None,
            centre: np.ndarray | None = None) -> Trajectory:  # fmt: skip
     """Tracks the first ``frames`` control steps of clip ``clip`` from its start (see the module docstring).
 
@@ -229,14 +223,15 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
         end_frame: The last frame tracked, a segment start of that grid or ``frames`` (None: ``frames``).
         start: The full MuJoCo state (nstate,) to start from at ``start_frame`` instead of the reference's there
             (e.g. one the feedback policy reached: the searches of ``feedback.visit_iterations``).
-        assist: Root forces (:mod:`samcon.assist`): its law gives every candidate a generalised force at every step
-            from the candidate's state (None: none, as in the gym).
+        force: An external generalised force on every candidate at every step, from its state (None: none, as in
+            the gym); it must cover :func:`searched_frames` steps from frame 0. The trajectory replays with it
+            (:func:`replay`'s ``force``).
         cost_limit: Raise :class:`SearchAbandoned` as soon as the cheapest kept sample's cost summed along its
             parents exceeds this: costs are never negative, so a trajectory through the kept samples can only cost
             more (a later backtrack could in principle re-search the last segments cheaper; it is not waited for).
         centre: PD targets of steps 0, 1, ... (G, nu) that the candidates' offsets are drawn around instead of the
             reference's next-frame hinge angles (steps past G: the reference's): a search around a path made
-            another way, e.g. with root help (``samcon.assist --then-search``). The offsets are then on it.
+            another way (e.g. under an external force that is then taken away). The offsets are then on it.
     """
     grid = segment_bounds(library, clip, frames, search.segment_frames, search.align_cycle)
     end_frame = frames if end_frame is None else end_frame
@@ -246,17 +241,14 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     t0 = time.perf_counter()
     n, nu, hinge = search.samples, humanoid.nu, humanoid.hinge_qpos
     # The reference past the last frame too, for the look-ahead (a one-shot clip only to its end).
-    beyond = search.lookahead_frames if library.loop[clip] else min(search.lookahead_frames,
-                                                                     max(0, library.num_frames[clip] - 1 - frames))
-    ref = reference_frames(library, clip, frames + int(beyond))
+    ref = reference_frames(library, clip, searched_frames(library, clip, frames, search.lookahead_frames))
     centres = ref.qpos[1:, hinge].copy()  # the targets an offset of 0 gives at step f -> f + 1
     if centre is not None:
         g = min(len(centre), len(centres))
         centres[:g] = np.asarray(centre, dtype=float)[:g]
-    law = None if assist is None else assist(library, clip, len(ref.qpos) - 1)
     bounds = grid[(grid >= start_frame) & (grid <= end_frame)]
     nseg = len(bounds) - 1
-    sim = BatchedSim(humanoid, n, threads, max_speed, applied=law is not None)
+    sim = BatchedSim(humanoid, n, threads, max_speed, applied=force is not None)
     fk = ForwardKinematics(humanoid, threads)
     # The start time as the gym reaches frame start_frame from 0 (previous time + dt), as reference_frames does.
     t_start = 0.0 if start_frame == 0 else (start_frame - 1) * library.dt + library.dt
@@ -302,7 +294,7 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
                 noise = mean + width * rng.standard_normal((n, nu))
                 offset = base + noise
                 c, terms, end = _simulate(sim, fk, humanoid, cost, starts, offset, ref, f0, f1, centres,
-                                          search.lookahead_frames, search.lookahead_weight, law)  # fmt: skip
+                                          search.lookahead_frames, search.lookahead_weight, force)  # fmt: skip
                 rounds.append((parent, offset, c, end, terms, feat, fresh))
                 elite = np.flatnonzero(~fresh)[np.argsort(c[~fresh], kind="stable")[: search.elite]]
                 w = _log_weights(len(elite))
@@ -352,18 +344,16 @@ def samcon(humanoid: Humanoid, library: MotionLibrary, clip: int, frames: int, s
     traj = _trace_back(library.names[clip], start, history, centres, bounds, samples, time.perf_counter() - t0,
                        features, actions)  # fmt: skip
     traj.backtracks, traj.sigma = backtracks, search.sigma_init
-    if law is not None:
-        traj.forces = assisted_replay(humanoid, start, traj.targets, law, int(bounds[0]), max_speed)[1]
     return traj
 
 
 def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: CostConfig, starts: np.ndarray,
               offset: np.ndarray, ref: CharacterState, f0: int, f1: int, centres: np.ndarray, lookahead: int = 0,
               lookahead_weight: float = 1.0,
-              law: AssistLaw | None = None) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:  # fmt: skip
+              force: ExternalForce | None = None) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:  # fmt: skip
     """Simulates every candidate through frames [f0, f1) from ``starts`` (n, nstate) with targets ``centres[f]`` +
     ``offset`` at step f (the reference's next-frame hinge angles unless the search has a centre path; and, with
-    ``law``, the generalised force it gives each over every step).
+    ``force``, the generalised force it gives each over every step).
 
     With ``lookahead`` > 0 each candidate plays on for that many frames past the segment (the same offset held,
     at most to the reference's last frame), and ``lookahead_weight`` times that stretch's mean cost joins its
@@ -382,7 +372,7 @@ def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: 
     sums = {key: np.zeros(n) for key in (*COST_TERMS, "fallen")}
     blown = np.zeros(n, dtype=bool)
     for f in range(f0, f1):
-        blown |= sim.step(centres[f][None] + offset, _force(law, f, sim))
+        blown |= sim.step(centres[f][None] + offset, _force(force, f, sim))
         # A blown-up character is put back on its start so that no NaN reaches the kinematics; it is never kept.
         sim.state[blown] = starts[blown]
         now = fk(sim.qpos.copy(), sim.qvel.copy())
@@ -397,7 +387,7 @@ def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: 
     if len(ahead):
         more = np.zeros(n)
         for f in ahead:
-            blown_ahead = sim.step(centres[f][None] + offset, _force(law, f, sim))
+            blown_ahead = sim.step(centres[f][None] + offset, _force(force, f, sim))
             sim.state[blown_ahead | blown] = end[blown_ahead | blown]
             more += tracking_cost(humanoid, cost, fk(sim.qpos.copy(), sim.qvel.copy()), ref[np.full(n, f + 1)])[0]
         total += lookahead_weight * more / len(ahead)
@@ -405,8 +395,8 @@ def _simulate(sim: BatchedSim, fk: ForwardKinematics, humanoid: Humanoid, cost: 
     return total, {k: v / (frames if k != "fallen" else 1) for k, v in sums.items()}, end
 
 
-def _force(law: AssistLaw | None, frame: int, sim: BatchedSim) -> np.ndarray | None:
-    return None if law is None else law(frame, sim.qpos, sim.qvel)
+def _force(force: ExternalForce | None, frame: int, sim: BatchedSim) -> np.ndarray | None:
+    return None if force is None else force(frame, sim.qpos, sim.qvel)
 
 
 def _trace_back(name: str, start: np.ndarray, history: list, centres: np.ndarray, bounds: np.ndarray,
@@ -432,35 +422,16 @@ def _trace_back(name: str, start: np.ndarray, history: list, centres: np.ndarray
     )  # fmt: skip
 
 
-def assisted_replay(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, law: AssistLaw, first: int = 0,
-                    max_speed: float = 1000.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Plays PD targets (F, nu) open loop from a full state (nstate,) at clip frame ``first`` with the forces of
-    ``law``: the state after every step (F, nstate) and the force of every step (F, nv)."""
-    sim = BatchedSim(humanoid, 1, 0, max_speed, applied=True)
-    out, forces = np.zeros((len(targets), len(start))), np.zeros((len(targets), humanoid.nv))
-    try:
-        sim.state[0] = start
-        for f, target in enumerate(targets):
-            forces[f] = law(first + f, sim.qpos, sim.qvel)[0]
-            sim.step(target[None], forces[f])
-            out[f] = sim.state[0]
-    finally:
-        sim.close()
-    return out, forces
-
-
 def replay(humanoid: Humanoid, start: np.ndarray, targets: np.ndarray, max_speed: float = 1000.0,
-           forces: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
-    """Plays PD targets (F, nu) open loop from a full state (nstate,), with ``forces`` (F, nv) the generalised force
-    of every step too; the state after every step, (F, nstate)."""
-    if forces is not None:
-        return assisted_replay(humanoid, start, targets, HeldForces(forces), 0, max_speed)[0]
-    sim = BatchedSim(humanoid, 1, 0, max_speed)
+           force: ExternalForce | None = None, first: int = 0) -> np.ndarray:  # fmt: skip
+    """Plays PD targets (F, nu) open loop from a full state (nstate,), with ``force`` the external force of every
+    step too (``start`` at clip frame ``first``); the state after every step, (F, nstate)."""
+    sim = BatchedSim(humanoid, 1, 0, max_speed, applied=force is not None)
     out = np.zeros((len(targets), len(start)))
     try:
         sim.state[0] = start
         for f, target in enumerate(targets):
-            sim.step(target[None])
+            sim.step(target[None], _force(force, first + f, sim))
             out[f] = sim.state[0]
     finally:
         sim.close()

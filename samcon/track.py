@@ -43,11 +43,10 @@ from samcon.lqr import evaluation_policy, grow_paths, play_until_falls
 from samcon.optimise import optimise_gains, plot_history, reduced_indices
 from samcon.polish import Searcher, polish
 from samcon.search import (
-    AssistLaw,
+    ExternalForce,
     Progress,
     SearchAbandoned,
     Trajectory,
-    assisted_replay,
     cycle_frames,
     horizon,
     reference_frames,
@@ -322,26 +321,23 @@ def track_clip(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, cl
 
 
 def polished(traj: Trajectory, cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
-             log: Any, searcher: Searcher | None = None, law: AssistLaw | None = None) -> Trajectory:  # fmt: skip
+             log: Any, searcher: Searcher | None = None,
+             force: ExternalForce | None = None) -> Trajectory:  # fmt: skip
     """``traj`` (from the clip's start) after the iLQR polish (:mod:`samcon.polish`), its per-segment record
     recomputed along the polished path (unchanged where the polish was dropped); the polish's seconds count in the
-    oracle's. With ``law`` (root forces, :mod:`samcon.assist`) the polish and the replay apply them too, and
-    ``forces`` records those of the polished path."""
+    oracle's. With ``force`` (an external force, :class:`samcon.search.ExternalForce`) the polish and the replay
+    apply it too."""
     hinge = humanoid.hinge_qpos
     ref = reference_frames(library, clip, traj.frames)
     ref_targets = ref.qpos[1:, hinge]
     targets, summary = polish(humanoid, traj.start_state, traj.targets, ref, ref_targets, cfg.polish,
                               cfg.cost.fall_head_error, traj.clip, log, lqr=cfg.lqr, searcher=searcher,
-                              law=law)  # fmt: skip
+                              force=force)  # fmt: skip
     summary["windows"] = [{k: w[k] for k in ("first", "end", "searched")} | {"steps": len(w["iterations"]) - 1}
                           for w in summary["windows"]]  # fmt: skip
     if not summary["kept"]:
         return replace(traj, seconds=traj.seconds + summary["seconds"], polish=summary)
-    forces = None
-    if law is None:
-        states = replay(humanoid, traj.start_state, targets, cfg.gym.max_speed)
-    else:
-        states, forces = assisted_replay(humanoid, traj.start_state, targets, law, 0, cfg.gym.max_speed)
+    states = replay(humanoid, traj.start_state, targets, cfg.gym.max_speed, force)
     m = humanoid.model
     fk = ForwardKinematics(humanoid, threads=0)
     try:
@@ -361,7 +357,6 @@ def polished(traj: Trajectory, cfg: SamconConfig, humanoid: Humanoid, library: M
         segment_cost=mean(per_frame),
         segment_terms={k: mean(terms[k]) for k in COST_TERMS} | {"fallen": np.bincount(seg, terms["fallen"] * 1.0)},
         end_states=states[traj.bounds[1:] - 1], seconds=traj.seconds + summary["seconds"], polish=summary,
-        forces=forces,
     )  # fmt: skip
 
 

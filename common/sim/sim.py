@@ -1,11 +1,11 @@
 """N characters stepped together in MuJoCo with ``mujoco.rollout`` (C++ threads, no Python loop per substep).
 
-Each character is one batch entry of a rollout of ``substeps`` physics steps with a constant control (the PD
-targets of the position actuators). All arrays are preallocated and contiguous so that the rollout runs with
-``skip_checks``. With ``applied=True`` every step also takes a generalised force per character (MuJoCo's
-``qfrc_applied``, held over the substeps like the targets): the root forces of ``samcon.assist``. A character
-whose simulation raised a MuJoCo warning (e.g. bad accelerations) has the rest of its rollout frozen, so its time
-stops advancing: that, or a non-finite or absurd velocity, marks it as diverged.
+Each character is one batch entry of a rollout of ``substeps`` physics steps with a constant control (the PD targets
+of the position actuators). All arrays are preallocated and contiguous so that the rollout runs with
+``skip_checks``. With ``applied=True`` every step also takes an external generalised force per character (MuJoCo's
+``qfrc_applied``, held over the substeps like the targets); the gym applies none. A character whose simulation
+raised a MuJoCo warning (e.g. bad accelerations) has the rest of its rollout frozen, so its time stops advancing:
+that, or a non-finite or absurd velocity, marks it as diverged.
 """
 
 from __future__ import annotations
@@ -29,7 +29,8 @@ class BatchedSim:
         num_envs: Number of characters N.
         threads: Rollout threads; 0 or 1 runs on the calling thread.
         max_speed: A generalised velocity above this (m/s or rad/s) counts as a blown-up simulation.
-        applied: :meth:`step` also takes a generalised force (``qfrc_applied``) per character.
+        applied: :meth:`step` also takes an external generalised force (``qfrc_applied``, nv values: forces on
+            translational and torques on rotational dofs) per character.
     """
 
     def __init__(self, humanoid: Humanoid, num_envs: int, threads: int = 2, max_speed: float = 1e3,

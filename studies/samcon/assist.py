@@ -24,12 +24,12 @@ the assisted path alone at a smaller cap (``--then-caps``) fell on run and dance
 where the lost help first lets it drift, has nothing to correct the drift with.
 
 ``--then-couple W1 W2 ...`` (session 25) takes a couple away inside the polish instead: the last path's couple (as
-its law gave it) becomes three more controls of the iLQR (:class:`samcon.polish.Couple`), each frame's costing W x
+its law gave it) becomes three more controls of the iLQR (:mod:`studies.samcon.couple`), each frame's costing W x
 its squared norm, polished with each weight in turn (rising), and then the path is polished once more without it,
 an unassisted open-loop path. The optimiser moves the work from the couple to the targets while it keeps the path.
 
 The force is a function of the clip frame and the state, so an assisted path is still open loop and replays
-bit-exactly with the law (:func:`samcon.search.assisted_replay`); the polish rolls out with the law and its
+bit-exactly with the law (:func:`studies.samcon.forces.assisted_replay`); the polish rolls out with the law and its
 linearisation counts the law's dependence on the state. The residual fed forward alone (``scale`` 1, no feedback)
 made the search worse on run and jog (README, session 20): the reference's centre of mass falls faster than g at the
 top of run's flights, and pushing the character down there did not make up for the push-off it could not give.
@@ -55,7 +55,6 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from functools import partial
 from typing import Any
 
 import mujoco
@@ -72,10 +71,11 @@ from common.motion.dataset import resolve_clips
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
 from common.sim.rewards import termination
-from samcon.config import SamconConfig
-from samcon.polish import ROOT_TURN, Couple, polish
-from samcon.search import assisted_replay, horizon, reference_frames, replay, samcon, start_state
+from samcon.config import SamconConfig, SearchConfig
+from samcon.polish import polish
+from samcon.search import Trajectory, horizon, reference_frames, replay, samcon, searched_frames, start_state
 from samcon.track import cli_overrides, clip_generator, polished, segment_progress
+from studies.samcon.couple import ROOT_TURN, Couple, polish_couple
 from studies.samcon.feasibility import (
     CONTACT_TOLERANCE,
     accel_step,
@@ -86,6 +86,7 @@ from studies.samcon.feasibility import (
     residual_vector,
     total_mass,
 )
+from studies.samcon.forces import assisted_replay
 
 
 @dataclass(frozen=True)
@@ -164,10 +165,9 @@ def residual_per_frame(humanoid: Humanoid, qpos: np.ndarray, dt: float, step: in
 
 
 class RootAssist:
-    """The law of :class:`AssistConfig` for a clip's first ``steps`` steps from its start (a
-    :data:`samcon.search.AssistLaw`; ``RootAssist`` with ``humanoid`` and ``cfg`` bound is a
-    :data:`samcon.search.Assist`). The reference is :func:`samcon.search.reference_frames`', the residual's h frames
-    past the last as the library continues the clip.
+    """The law of :class:`AssistConfig` for a clip's first ``steps`` steps from its start (an external force,
+    :class:`samcon.search.ExternalForce`). The reference is :func:`samcon.search.reference_frames`', the residual's h
+    frames past the last as the library continues the clip.
     """
 
     def __init__(self, humanoid: Humanoid, library: MotionLibrary, clip: int, steps: int, cfg: AssistConfig) -> None:
@@ -352,15 +352,13 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         paths = {"start_state": first, "given": np.asarray(start_path, dtype=float)}
         return _search_around(cfg, acfg, humanoid, library, clip, log, row, paths, paths["given"], 0, 0.0,
                               then_search, then_sigma, rng, common, then_couple, again, save)  # fmt: skip
-    traj = samcon(humanoid, library, clip, frames, cfg.search, cfg.cost, rng,
-                  assist=partial(RootAssist, humanoid, cfg=acfg), **common)  # fmt: skip
+    traj, states, forces = _search(cfg, cfg.search, acfg, humanoid, library, clip, rng, common)
     paths = {"start_state": traj.start_state, "searched": traj.targets}
-    states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
     row["searched"] = judge(humanoid, states, ref[1:], cfg.train.eval)
-    row |= _forces(traj.forces, weight, torque, traj.start_state, states)
+    row |= _forces(forces, weight, torque, traj.start_state, states)
     for j, cap in enumerate([acfg.cap, *then_caps] if cfg.polish.iterations else []):
         law = RootAssist(humanoid, library, clip, frames, replace(acfg, cap=cap))
-        traj = polished(traj, cfg, humanoid, library, clip, log, law=law)
+        traj = polished(traj, cfg, humanoid, library, clip, log, force=law)
         states, forces = assisted_replay(humanoid, traj.start_state, traj.targets, law, 0, cfg.gym.max_speed)
         judged = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(traj.polish["kept"])}
         if j == 0:  # the assisted result: its force replaces the search's
@@ -376,6 +374,18 @@ def track_assisted(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
               flush=True)  # fmt: skip
     return _search_around(cfg, acfg, humanoid, library, clip, log, row, paths, traj.targets, traj.samples,
                           traj.seconds, then_search, then_sigma, rng, common, then_couple, again, save)  # fmt: skip
+
+
+def _search(cfg: SamconConfig, search: SearchConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary,
+            clip: int, rng: np.random.Generator, common: dict[str, Any],
+            centre: np.ndarray | None = None) -> tuple[Trajectory, np.ndarray, np.ndarray]:  # fmt: skip
+    """The search of ``search`` from the clip's start under ``acfg``'s law (around ``centre`` if given), and its path
+    replayed with the law: the trajectory, the states (F, nstate) and the force of every step (F, nv)."""
+    frames = horizon(library, clip, cfg.train.max_frames)
+    law = RootAssist(humanoid, library, clip, searched_frames(library, clip, frames, search.lookahead_frames), acfg)
+    traj = samcon(humanoid, library, clip, frames, search, cfg.cost, rng, force=law, centre=centre, **common)
+    states, forces = assisted_replay(humanoid, traj.start_state, traj.targets, law, 0, cfg.gym.max_speed)
+    return traj, states, forces
 
 
 def _search_around(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, library: MotionLibrary, clip: int,
@@ -394,21 +404,18 @@ def _search_around(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, li
         stage = replace(acfg, cap=force_cap, torque_cap=torque_cap)
         print(f"{name}: searching around the last path with force cap {force_cap:g}, torque cap {torque_cap:g}",
               file=log, flush=True)  # fmt: skip
-        traj = samcon(humanoid, library, clip, frames, replace(cfg.search, sigma_init=then_sigma), cfg.cost, rng,
-                      assist=partial(RootAssist, humanoid, cfg=stage), centre=centre, **common)  # fmt: skip
+        traj, states, forces = _search(cfg, replace(cfg.search, sigma_init=then_sigma), stage, humanoid, library,
+                                       clip, rng, common, centre)  # fmt: skip
         samples, seconds = samples + traj.samples, seconds + traj.seconds
-        states = replay(humanoid, traj.start_state, traj.targets, cfg.gym.max_speed, traj.forces)
         result: dict[str, Any] = {"force_cap": force_cap, "torque_cap": torque_cap,
                                   "searched": judge(humanoid, states, ref[1:], cfg.train.eval)}  # fmt: skip
         if cfg.polish.iterations:
             law = RootAssist(humanoid, library, clip, frames, stage)
             before = traj.seconds
-            traj = polished(traj, cfg, humanoid, library, clip, log, law=law)
+            traj = polished(traj, cfg, humanoid, library, clip, log, force=law)
             seconds += traj.seconds - before
             states, forces = assisted_replay(humanoid, traj.start_state, traj.targets, law, 0, cfg.gym.max_speed)
             result["polished"] = judge(humanoid, states, ref[1:], cfg.train.eval) | {"kept": bool(traj.polish["kept"])}
-        else:
-            forces = traj.forces
         result |= _forces(forces, weight, torque_cap > 0.0, traj.start_state, states)
         row.setdefault("then_search", []).append(result)
         paths[f"then_search_{i}"] = centre = traj.targets
@@ -447,8 +454,8 @@ def _couple_away(cfg: SamconConfig, acfg: AssistConfig, humanoid: Humanoid, libr
     pcfg = replace(cfg.polish, follow=False)  # a look-ahead played by an LQR cannot carry the couple
     common = dict(lqr=cfg.lqr, name=name, log=log)
     for i, w in enumerate(weights):
-        targets, summary = polish(humanoid, first, targets, ref, ref_targets, pcfg, cfg.cost.fall_head_error,
-                                  couple=Couple(values, w), **common)  # fmt: skip
+        targets, summary = polish_couple(humanoid, first, targets, ref, ref_targets, pcfg, cfg.cost.fall_head_error,
+                                         Couple(values, w), **common)  # fmt: skip
         values, seconds = summary.pop("couple"), seconds + summary["seconds"]
         states, _ = assisted_replay(humanoid, first, targets, Couple(values, w).law(humanoid.nv), 0,
                                     cfg.gym.max_speed)  # fmt: skip

@@ -89,7 +89,7 @@ def test_a_force_response_does_not_depend_on_what_its_scratch_data_did_before() 
     """The root force's central differences reuse one MjData; the solver's warm start is not part of the saved state,
     so the scratch data's history used to reach the result (roll, lying on the floor, 300 N up at the root: by 5e-14
     of 5.5e-4, which the polish's iterations amplified). Now a used MjData gives the fresh one's result bit for bit."""
-    from samcon.lqr import _force_response
+    from samcon.lqr import force_response
     from samcon.search import reference_frames, start_state
 
     humanoid = Humanoid()
@@ -99,10 +99,10 @@ def test_a_force_response_does_not_depend_on_what_its_scratch_data_did_before() 
     states = nominal_states(humanoid, start_state(library, humanoid, 0), targets)
     force = np.zeros(m.nv)
     force[2] = 300.0
-    fresh = _force_response(humanoid, mujoco.MjData(m), states[3], targets[3], force, 2)
+    fresh = force_response(humanoid, mujoco.MjData(m), states[3], targets[3], force, 2)
     used = mujoco.MjData(m)
-    _force_response(humanoid, used, states[1], targets[1], force, 0)  # leaves its warm start behind
-    np.testing.assert_array_equal(_force_response(humanoid, used, states[3], targets[3], force, 2), fresh)
+    force_response(humanoid, used, states[1], targets[1], force, 0)  # leaves its warm start behind
+    np.testing.assert_array_equal(force_response(humanoid, used, states[3], targets[3], force, 2), fresh)
     assert np.abs(fresh).max() > 1e-4
 
 

@@ -11,14 +11,27 @@ from common.character.humanoid import Humanoid
 from common.motion.dataset import load_motions
 from samcon.config import LqrConfig, PolishConfig
 from samcon.lqr import linearise, nominal_states, riccati, state_weights
-from samcon.polish import BodyCost, Couple, Follow, backward_pass, deviation, polish, window_rollout
-from samcon.search import HeldForces, reference_frames, start_state
+from samcon.polish import BodyCost, Follow, backward_pass, deviation, polish, window_rollout
+from samcon.search import reference_frames, start_state
 
 
 @pytest.fixture(scope="module")
 def walk() -> tuple[Humanoid, object]:
     humanoid = Humanoid()
     return humanoid, load_motions(["walk"], humanoid)
+
+
+class _Pushed:
+    """An external force that changes over the path but not with the state: ``forces[f]`` at frame f (F, nv)."""
+
+    def __init__(self, forces: np.ndarray) -> None:
+        self.forces = forces
+
+    def __call__(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        return np.tile(self.forces[frame], (len(qpos), 1))
+
+    def jacobian(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        return np.zeros((len(qpos), self.forces.shape[1], 2 * self.forces.shape[1]))
 
 
 def _qp_solution(a, b, lx, lxx, lu, luu, free):
@@ -113,20 +126,20 @@ def test_body_cost_derivatives_match_finite_differences(walk) -> None:
 def test_polish_lowers_the_cost_and_replays(walk, pushed: bool, follow: bool) -> None:
     """From the reference's own targets (open-loop playback) on walk's first 24 frames, two windows of iLQR and two
     iterations on the whole path lower the body error, and the targets returned replay to the cost the polish
-    reports; with root forces held (samcon.assist), replayed with the same forces; with ``follow`` (look-aheads
-    played by the path's LQR) too."""
+    reports; with an external force on the root, replayed with the same force; with ``follow`` (look-aheads played by
+    the path's LQR) too."""
     humanoid, library = walk
     frames = 24
     ref = reference_frames(library, 0, frames)
     ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
     start = start_state(library, humanoid, 0)
-    law = None
+    force = None
     if pushed:  # a root force changing over the path: 150 N up and a sideways swing of 80 N
         forces = np.zeros((frames, humanoid.nv))
         forces[:, 1], forces[:, 2] = 80.0 * np.sin(np.arange(frames) / 4.0), 150.0
-        law = HeldForces(forces)
+        force = _Pushed(forces)
     cfg = PolishConfig(iterations=3, window=16, stride=8, lookahead=4, whole_iterations=2, follow=follow)
-    targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, law=law,
+    targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, force=force,
                               lqr=LqrConfig() if follow else None)  # fmt: skip
     assert summary["kept"] and summary["cost_after"] < summary["cost_before"]
     # the window pass, then the whole path from its result: never dearer than the pass it started from
@@ -135,48 +148,13 @@ def test_polish_lowers_the_cost_and_replays(walk, pushed: bool, follow: bool) ->
     assert not np.array_equal(targets, ref_targets)
     cost = BodyCost(humanoid, cfg, ref, ref_targets, 0.25)
     try:
-        replayed = cost.path_cost(nominal_states(humanoid, start, targets, law), targets, 0)
+        replayed = cost.path_cost(nominal_states(humanoid, start, targets, force), targets, 0)
         plain = cost.path_cost(nominal_states(humanoid, start, targets), targets, 0)
     finally:
         cost.close()
     assert replayed.total == summary["cost_after"]
     assert replayed.fell_at == -1
     assert (plain.total == replayed.total) == (not pushed)  # the forces were applied, not ignored
-
-
-@pytest.mark.parametrize("weight, tracked", [(1e-6, False), (1.0, False), (1e-6, True), (1.0, True)])
-def test_a_couple_polished_as_a_control_replays_and_a_dear_one_is_taken_away(walk, weight: float,
-                                                                             tracked: bool) -> None:  # fmt: skip
-    """From walk's own targets with a yaw couple of 20 N m on the root (a push it does not have), the polish with
-    the couple as three more controls: the targets and couple it returns replay (the couple held) to the cost it
-    reports; cheap (1e-6 per (N m)^2), the couple is what it turns to undo the push (the body error falls, the yaw
-    couple shrinks); dear (1 per (N m)^2, 400 a frame at the start), it is taken away. ``tracked``: the frames no
-    window has changed yet start from the path's LQR, the couple one of its controls."""
-    humanoid, library = walk
-    frames = 24
-    ref = reference_frames(library, 0, frames)
-    ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
-    start = start_state(library, humanoid, 0)
-    push = Couple(np.tile([0.0, 0.0, 20.0], (frames, 1)), weight)
-    cfg = PolishConfig(iterations=4, window=16, stride=8, lookahead=4, whole_iterations=2)
-    targets, summary = polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, couple=push,
-                              lqr=LqrConfig() if tracked else None)  # fmt: skip
-    values = summary["couple"]
-    assert summary["kept"] and summary["cost_after"] < summary["cost_before"] and values.shape == (frames, 3)
-    cost = BodyCost(humanoid, cfg, ref, ref_targets, 0.25)
-    try:
-        replayed = cost.path_cost(nominal_states(humanoid, start, targets, Couple(values, weight).law(humanoid.nv)),
-                                  targets, 0)  # fmt: skip
-        without = cost.path_cost(nominal_states(humanoid, start, targets), targets, 0)
-    finally:
-        cost.close()
-    assert replayed.total + weight * np.sum(values**2) == pytest.approx(summary["cost_after"], rel=1e-12)
-    assert without.total != replayed.total  # the couple is applied, not ignored
-    if weight < 1e-3:
-        assert summary["body_rms_mm_after"] < 0.2 * summary["body_rms_mm_before"]  # 94 -> 3 mm
-        assert np.abs(values[:, 2]).mean() < 8.0  # most of the push undone (4 N m left on average)
-    else:
-        assert np.sum(values**2) < 0.01 * np.sum(push.values**2)
 
 
 def test_a_pass_that_would_repeat_a_dropped_one_is_skipped(walk, monkeypatch) -> None:
@@ -191,24 +169,13 @@ def test_a_pass_that_would_repeat_a_dropped_one_is_skipped(walk, monkeypatch) ->
 
     def worse(humanoid, cost, start, targets, *args, **kwargs):  # a pass that ends dearer than it started
         calls.append(1)
-        return targets + 0.3, [], None
+        return targets + 0.3, []
 
     monkeypatch.setattr(P, "_sweep", worse)
     targets, summary = polish(humanoid, start_state(library, humanoid, 0), ref_targets, ref, ref_targets,
                               PolishConfig(iterations=1, window=4, stride=2, passes=3), 0.25)  # fmt: skip
     assert len(calls) == 1 and targets is ref_targets and not summary["kept"]
     assert [p.get("repeat_skipped", False) for p in summary["passes"]] == [False, True, True]
-
-
-def test_a_couple_as_a_control_refuses_what_it_cannot_combine_with(walk) -> None:
-    humanoid, library = walk
-    ref = reference_frames(library, 0, 8)
-    ref_targets = ref.qpos[1:, humanoid.hinge_qpos]
-    start, couple = start_state(library, humanoid, 0), Couple(np.zeros((8, 3)), 1.0)
-    for cfg, law in ((PolishConfig(iterations=1), HeldForces(np.zeros((8, humanoid.nv)))),
-                     (PolishConfig(iterations=1, window=4, stride=2, follow=True), None)):  # fmt: skip
-        with pytest.raises(ValueError, match="root couple"):
-            polish(humanoid, start, ref_targets, ref, ref_targets, cfg, 0.25, law=law, couple=couple)
 
 
 def test_windows_ask_the_searcher_for_the_frames_after_the_last_look_ahead(walk) -> None:
@@ -232,8 +199,8 @@ def test_windows_ask_the_searcher_for_the_frames_after_the_last_look_ahead(walk)
 
 
 def test_a_path_without_a_usable_lqr_is_polished_from_its_targets(walk, monkeypatch) -> None:
-    """A path through a blow-up has a singular or non-finite LQR (the continuation of samcon.assist met one): the
-    windows then start their new frames from the path's targets, and the polish still returns."""
+    """A path through a blow-up has a singular or non-finite LQR (a continuation that took a root force away met
+    one): the windows then start their new frames from the path's targets, and the polish still returns."""
     import samcon.polish as polish_module
 
     def singular(*args, **kwargs):

@@ -19,10 +19,11 @@ from common.sim.sim import BatchedSim
 from samcon.config import CostConfig, SearchConfig
 from samcon.feedback import ClipPlan, open_loop_policy
 from samcon.lqr import linearise, nominal_states
-from samcon.polish import Couple
-from samcon.search import HeldForces, assisted_replay, reference_frames, replay, samcon, start_state
+from samcon.search import reference_frames, replay, samcon, searched_frames, start_state
 from studies.samcon.assist import AssistConfig, RootAssist, judge, main, residual_per_frame
+from studies.samcon.couple import Couple
 from studies.samcon.feasibility import body_weight, com_and_clearance, total_mass
+from studies.samcon.forces import HeldForces, assisted_replay
 
 
 @pytest.fixture(scope="module")
@@ -84,26 +85,26 @@ def test_the_law_by_hand(walk) -> None:
 def test_an_assisted_search_replays_bit_exactly_and_a_zero_cap_is_the_plain_search(walk) -> None:
     humanoid, library = walk
     search = SearchConfig(segment_frames=4, samples=8, iterations=2, keep=3, elite=4, lookahead_frames=4)
+    steps = searched_frames(library, 0, 12, search.lookahead_frames)  # the law covers the look-ahead too
 
     def run(cap: float | None):
-        assist = (
-            None if cap is None else (lambda lib, c, n: RootAssist(humanoid, lib, c, n, AssistConfig(cap=cap, step=2)))
-        )
-        return samcon(humanoid, library, 0, 12, search, CostConfig(), np.random.default_rng(5), assist=assist)
+        force = None if cap is None else RootAssist(humanoid, library, 0, steps, AssistConfig(cap=cap, step=2))
+        return samcon(humanoid, library, 0, 12, search, CostConfig(), np.random.default_rng(5), force=force)
 
     plain, zero, pushed = run(None), run(0.0), run(0.5)
     np.testing.assert_array_equal(plain.targets, zero.targets)
     np.testing.assert_array_equal(plain.segment_cost, zero.segment_cost)
-    assert plain.forces is None and not zero.forces.any()
-    assert np.abs(pushed.forces[:, 0:3]).max() > 1.0 and not pushed.forces[:, 3:].any()
-    assert np.linalg.norm(pushed.forces[:, 0:3], axis=-1).max() <= 0.5 * body_weight(humanoid) * (1 + 1e-12)
-    # Replayed with the forces it recorded, or with the law, the path passes through the searched end states.
-    states = replay(humanoid, pushed.start_state, pushed.targets, forces=pushed.forces)
-    np.testing.assert_array_equal(states[pushed.bounds[1:] - 1], pushed.end_states)
     law = RootAssist(humanoid, library, 0, 12, AssistConfig(cap=0.5, step=2))
-    again, forces = assisted_replay(humanoid, pushed.start_state, pushed.targets, law)
-    np.testing.assert_array_equal(again, states)
-    np.testing.assert_array_equal(forces, pushed.forces)
+    # Replayed with the law, the path passes through the searched end states; held, its forces do the same.
+    states, forces = assisted_replay(humanoid, pushed.start_state, pushed.targets, law)
+    np.testing.assert_array_equal(states[pushed.bounds[1:] - 1], pushed.end_states)
+    np.testing.assert_array_equal(replay(humanoid, pushed.start_state, pushed.targets, force=law), states)
+    np.testing.assert_array_equal(replay(humanoid, pushed.start_state, pushed.targets, force=HeldForces(forces)),
+                                  states)  # fmt: skip
+    none = RootAssist(humanoid, library, 0, 12, AssistConfig(cap=0.0, step=2))
+    assert not assisted_replay(humanoid, zero.start_state, zero.targets, none)[1].any()
+    assert np.abs(forces[:, 0:3]).max() > 1.0 and not forces[:, 3:].any()
+    assert np.linalg.norm(forces[:, 0:3], axis=-1).max() <= 0.5 * body_weight(humanoid) * (1 + 1e-12)
 
 
 def test_the_judge_is_the_evaluator(walk) -> None:
@@ -228,16 +229,10 @@ def test_paths_are_written_after_every_stage(tmp_path: Path, monkeypatch: pytest
     --paths: the searched, polished and couple stages."""
     import studies.samcon.assist as A
 
-    calls = []
+    def stop(*args, **kwargs):  # the module's own polish is the unassisted one (the couple's is polish_couple)
+        raise RuntimeError("stopped")
 
-    def polish_then_stop(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 2:
-            raise RuntimeError("stopped")
-        return A.polish.__wrapped__(*args, **kwargs)
-
-    polish_then_stop.__wrapped__ = A.polish
-    monkeypatch.setattr(A, "polish", polish_then_stop)
+    monkeypatch.setattr(A, "polish", stop)
     paths = tmp_path / "paths.npz"
     with pytest.raises(RuntimeError, match="stopped"):
         main(["--config", "configs/samcon/debug.yaml", "--motions", "walk", "--set", "polish.search=false",
