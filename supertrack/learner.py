@@ -32,7 +32,7 @@ from common.character.humanoid import Humanoid
 from common.evaluation.evaluate import Policy as EvalPolicy
 from common.motion.library import MotionLibrary
 from common.sim.buffer import CyclicBuffer
-from common.sim.collect import Block, CollectorSpec, make_collector
+from common.sim.collect import Block, CollectorSpec, chart_metrics, make_collector
 from common.train.averaging import WeightAverage
 from common.train.training import NanGuard, gym_config
 from supertrack.actor import Actor, GymActor
@@ -397,16 +397,12 @@ class SuperTrackLearner:
         return out
 
     def _pop_charts(self) -> dict[str, float]:
+        """What the gym's characters did since the last update (the keys both learners log, see
+        :func:`common.sim.collect.chart_metrics`), and the buffer's size."""
         c, self._charts = self._charts, {}
         if not c:
             return {}
-        out = {"charts/reward": c["reward_sum"] / c["steps"], "charts/buffer_frames": float(len(self.train_buffer)),
-               "perf/collect_s": c["collect_s"]}  # fmt: skip
-        if c["episodes"]:
-            # Episodes that ended since the last update: length in frames, and the share that failed (not truncated).
-            out["charts/episode_length"] = c["episode_frames"] / c["episodes"]
-            out["charts/terminated_share"] = c["terminated"] / c["episodes"]
-        return out
+        return {**chart_metrics(c), "charts/buffer_frames": float(len(self.train_buffer))}
 
 
 def _steps(cfg: SuperTrackConfig) -> Steps:

@@ -16,13 +16,24 @@ bookkeeping fields of :mod:`common.sim.buffer` (``episode_id``, ``terminated``, 
   generator and the weights and step counts it was sent, never on timing: one seed gives one result, and
   :meth:`ProcessCollector.state_dict` (which waits for the block in flight and keeps it) lets ``--resume``
   continue exactly. Frames and weights travel through shared memory (two frame slots, used in turn, so a returned
-  block stays valid until the next call); only small commands and chart sums are pickled.
+  block stays valid until the next call); only small commands, chart sums and the actors' block reports are
+  pickled. With ``pipeline=False`` (an on-policy learner, e.g. PPO) :meth:`ProcessCollector.next_block` instead
+  collects the block it is asked for there and then, with the weights given then, and waits for it: no block is
+  ever in flight between calls, and the learner's update and the workers' stepping take turns.
+
+Besides the weights a block may carry the learner's per-step inputs (``CollectorSpec.inputs``, e.g. PPO's exploration
+noise, drawn by the learner so that the frames do not depend on the split among processes) and new RSI clip weights
+for the gym; an actor may add frame fields that need the step's result (``after_step``) and report what it learned
+over a block (``block_report``, e.g. PPO's observation statistics). Every source also sums charts while it steps
+(:mod:`common.sim.collect.charts`: reward, reward terms, termination events, episode lengths), from which both learners
+log the same keys.
 
 Gym seeds: worker p's gym uses ``gym.seed + p`` and its noise generator ``[noise_seed, p]``, so ``processes = 1``
-gives frame for frame what ``processes = 0`` gives with the same weights. Episode ids become ``id * K + p`` so that
-they stay unique across workers.
+gives frame for frame what ``processes = 0`` gives with the same weights (and inputs). Episode ids become
+``id * K + p`` so that they stay unique across workers.
 """
 
+from common.sim.collect.charts import chart_metrics
 from common.sim.collect.process import Collector, ProcessCollector, make_collector
 from common.sim.collect.source import (
     ActorFactory,
@@ -32,8 +43,9 @@ from common.sim.collect.source import (
     FieldLayout,
     FrameActor,
     FrameSource,
+    Inputs,
     LocalCollector,
 )
 
 __all__ = ["ActorFactory", "Block", "Collector", "CollectorError", "CollectorSpec", "FieldLayout", "FrameActor",
-           "FrameSource", "LocalCollector", "ProcessCollector", "make_collector"]
+           "FrameSource", "Inputs", "LocalCollector", "ProcessCollector", "chart_metrics", "make_collector"]
