@@ -25,6 +25,8 @@ from mujoco import rollout
 from common.character.humanoid import Humanoid
 from common.config import load_config
 from common.motion.dataset import load_motions
+from common.sim.gym import TrackingGym
+from common.train.training import gym_config
 from ppo.config import PPOTrackerConfig
 from ppo.learner import PPOLearner
 
@@ -59,8 +61,11 @@ def main() -> None:
     library = load_motions(list(cfg.train.motions), humanoid)
     learner = PPOLearner(cfg, library, humanoid, np.random.default_rng(cfg.train.seed))
     n, threads = cfg.gym.num_envs, cfg.gym.threads
-    res = learner.gym.reset()
-    state0 = learner.gym.sim.state.copy()
+    # The raw blocks' start: the learner's first state (its gym is the collector's, so a twin with the same seed).
+    gym = TrackingGym(gym_config(cfg), library, humanoid)
+    res = gym.reset()
+    state0 = gym.sim.state.copy()
+    gym.close()
     ctrl = np.ascontiguousarray(np.repeat(res.ref_next.qpos[:, None, humanoid.hinge_qpos], humanoid.physics.substeps,
                                           axis=1))  # fmt: skip
     datas = [mujoco.MjData(humanoid.model) for _ in range(max(1, threads))]

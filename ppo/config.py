@@ -2,7 +2,8 @@
 
 Sections: ``train`` (run length, evaluation; shared with SuperTrack), ``gym`` (characters, termination, reward),
 ``observation`` (what the networks see), ``network`` (actor and critic), ``ppo`` (rollouts and the update),
-``normalizer`` (observation statistics) and ``motion_weights`` (PARC's adaptive clip sampling).
+``normalizer`` (observation statistics), ``motion_weights`` (PARC's adaptive clip sampling) and ``collect`` (where the
+gym steps).
 ``configs/ppo/*.yaml`` document every value with its unit.
 """
 
@@ -174,6 +175,29 @@ class MotionWeightConfig:
 
 
 @dataclass(frozen=True)
+class CollectConfig:
+    """Where the gym steps (:mod:`common.sim.collect`).
+
+    Attributes:
+        processes: Collector processes beside the learner, each stepping about gym.num_envs / processes characters
+            with a CPU copy of the policy and of the observation normaliser. PPO is on-policy: the learner waits for
+            every rollout, collected with the weights of the update that follows it (no pipelining), so the
+            processes gain only where several gyms in parallel outrun one gym's own threads. The exploration noise
+            is drawn by the learner, so 1 gives the numbers of 0 bit for bit (on the CPU). K > 1 gives other
+            numbers, as deterministic: process p's gym has seed gym.seed + p (its own episode starts), and within a
+            rollout each process adds only its own characters to its normaliser copy (the learner's statistics,
+            which every rollout starts from, count all of them). 0: the gym steps in the learner's process, the
+            policy acting on ``train.device``.
+    """
+
+    processes: int = 0
+
+    def __post_init__(self) -> None:
+        if self.processes < 0:
+            raise ValueError(f"collect.processes must be >= 0, got {self.processes}")
+
+
+@dataclass(frozen=True)
 class PPOTrackerConfig:
     """Everything ``train-ppo`` reads from its YAML file."""
 
@@ -184,8 +208,11 @@ class PPOTrackerConfig:
     ppo: PPOConfig = field(default_factory=PPOConfig)
     normalizer: NormalizerConfig = field(default_factory=NormalizerConfig)
     motion_weights: MotionWeightConfig = field(default_factory=MotionWeightConfig)
+    collect: CollectConfig = field(default_factory=CollectConfig)
 
     def __post_init__(self) -> None:
+        if self.collect.processes > self.gym.num_envs:
+            raise ValueError(f"collect.processes ({self.collect.processes}) exceeds gym.num_envs ({self.gym.num_envs})")
         if self.batch_size % self.ppo.minibatch_size != 0:
             raise ValueError(
                 f"ppo.minibatch_size ({self.ppo.minibatch_size}) must divide the rollout of "

@@ -1,10 +1,13 @@
 """The PPO tracker as a :class:`common.train.training.Learner`: one iteration = collect() a rollout, update() on it.
 
-collect(): ``rollout_length`` gym steps of N characters. Each step observes the state (:mod:`common.sim.observation`),
-updates the normaliser's statistics, samples a ~ N(mu, sigma) and sends PD targets = reference hinge angles of the
-next frame + action_scale * clip(a); the row pushed to the cyclic buffer holds the normalised observation, the
-action, its log-probability, V(s), the reward, the done flags and, for truncated episodes, V of the state the step
-reached (the bootstrap). Finished episodes update the per-clip failure rates, whose weights go to the gym.
+collect(): ``rollout_length`` gym steps of N characters through the collector (:mod:`common.sim.collect`, in this
+process or in ``collect.processes`` worker processes), with the current weights and normaliser statistics and
+exploration noise drawn here: the actor (:class:`ppo.actor.GymActor`) observes each state, adds it to the
+normaliser's statistics, samples a ~ N(mu, sigma) and sends PD targets = reference hinge angles of the next frame +
+action_scale * clip(a). Each row pushed to the cyclic buffer holds the normalised observation, the action, its
+log-probability, V(s), the reward, the done flags and, for truncated episodes, V of the state the step reached (the
+bootstrap). The learner then adds the rollout's observation statistics to its normaliser, step by step, and the
+finished episodes to the per-clip failure rates, whose weights go to the gym with the next rollout.
 
 update(): GAE on ``buffer.latest(rollout_length)``, then ``epochs`` x ``minibatches`` Adam steps on the PPO loss, the
 normalised observations being exactly those the policy acted on (the ratio starts at 1).
@@ -13,6 +16,7 @@ normalised observations being exactly those the policy acted on (the ratio start
 from __future__ import annotations
 
 import copy
+import functools
 from typing import Any
 
 import numpy as np
@@ -22,15 +26,17 @@ from common.character.humanoid import Humanoid
 from common.evaluation.evaluate import Policy
 from common.motion.library import MotionLibrary
 from common.sim.buffer import CyclicBuffer
-from common.sim.gym import StepResult, TrackingGym
+from common.sim.collect import Block, CollectorSpec, chart_metrics, make_collector
+from common.sim.gym import StepResult
 from common.sim.observation import Observer
 from common.train.training import NanGuard, gym_config
+from ppo.actor import GymActor, actor_weights, frame_fields, observation_layout, pd_targets
 from ppo.config import PPOTrackerConfig
 from ppo.gae import gae
 from ppo.losses import ppo_loss
 from ppo.motion_weights import MotionWeights
 from ppo.networks import ActorCritic
-from ppo.normalizer import RunningNormalizer, normalized_mask
+from ppo.normalizer import RunningNormalizer, combine_moments, normalized_mask
 
 _LOG_CLIP_LIMIT = 20  # clips whose failure rates are logged one by one
 
@@ -43,20 +49,20 @@ class PPOLearner:
         library: Clips to track.
         humanoid: The model.
         rng: The learner's numpy generator (exploration noise, minibatch order); the trainer saves and restores it.
+
+    Raises:
+        ValueError: On a config the collector refuses (e.g. more collector processes than characters).
     """
 
     def __init__(self, config: PPOTrackerConfig, library: MotionLibrary, humanoid: Humanoid,
                  rng: np.random.Generator) -> None:  # fmt: skip
         self.config, self.library, self.humanoid, self.rng = config, library, humanoid, rng
         self.device = torch.device(config.train.device)
-        gym_cfg = gym_config(config)
         self.motion_weights = MotionWeights(library.num_clips, config.motion_weights)
-        self.gym = TrackingGym(gym_cfg, library, humanoid, clip_weights=self._clip_weights())
-        self.result = self.gym.reset()
-        self.num_envs, self.action_size = self.gym.num_envs, humanoid.nu
+        self.num_envs, self.action_size = config.gym.num_envs, humanoid.nu
         self.hinge_qpos = humanoid.hinge_qpos
         self.observe = Observer(config.observation, humanoid, library)
-        layout = self.observe.layout(self.result)
+        layout = observation_layout(self.observe, library)
         n = config.normalizer
         self.normalizer = RunningNormalizer(normalized_mask(layout, n.exclude), n.clip, n.epsilon, n.max_samples)
         self.obs_size = self.normalizer.size
@@ -76,6 +82,22 @@ class PPOLearner:
         self.last_value = np.zeros(self.num_envs)
         self.episode_return = np.zeros(self.num_envs)
         self.rollout_stats: dict[str, float] = {}
+        self.updates = 0
+        self.collector = make_collector(self._collector_spec(library, humanoid), config.collect.processes,
+                                        actor_weights(self.net, self.normalizer), pipeline=False)  # fmt: skip
+
+    def _collector_spec(self, library: MotionLibrary, humanoid: Humanoid) -> CollectorSpec:
+        """The gym and the actor: in this process it acts on ``train.device``, in a worker process on its CPU."""
+        c = self.config
+        device = str(self.device) if c.collect.processes == 0 else "cpu"
+        factory = functools.partial(GymActor, net=copy.deepcopy(self.net).cpu(),
+                                    normalizer=copy.deepcopy(self.normalizer), observation=c.observation,
+                                    library=library, network=c.network, device=device)  # fmt: skip
+        return CollectorSpec(gym=gym_config(c), library=library, humanoid=humanoid, actor_factory=factory,
+                             fields=frame_fields(self.obs_size, self.action_size), noise_seed=c.train.seed,
+                             max_steps=c.ppo.rollout_length, clip_weights=self._clip_weights(),
+                             torch_threads=c.train.torch_threads,
+                             inputs={"noise": ((self.action_size,), "float64")})  # fmt: skip
 
     # ----------------------------------------------------------------------------------------------- acting
     def _clip_weights(self) -> np.ndarray | None:
@@ -84,68 +106,40 @@ class PPOLearner:
     def _tensor(self, x: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(x, dtype=torch.float32, device=self.device)
 
-    def _pd_targets(self, reference: np.ndarray, action: np.ndarray) -> np.ndarray:
-        """targets = reference + action_scale * clip(action). Shapes: (N, A), (N, A) -> (N, A)."""
-        net = self.config.network
-        if net.action_clip is not None:
-            action = np.clip(action, -net.action_clip, net.action_clip)
-        return reference + net.action_scale * action
-
-    @torch.no_grad()
-    def _values(self, norm_obs: np.ndarray) -> np.ndarray:
-        """V of normalised observations. (M, D) -> (M,)."""
-        return self.net.value(self._tensor(norm_obs)).double().cpu().numpy()
-
     def collect(self) -> int:
         """Runs one rollout into the buffer; returns the number of samples (rollout_length x N)."""
         T, N = self.config.ppo.rollout_length, self.num_envs
-        lengths, returns, failed = [], [], []
-        terms = {k: 0.0 for k in self.config.gym.reward.weights}
-        reward_sum = 0.0
-        events: dict[str, float] = {}
-        for _ in range(T):
-            res = self.result
-            raw = self.observe(res)
-            self.normalizer.update(raw)
-            norm_obs = self.normalizer.normalize(raw)
-            noise = self._tensor(self.rng.standard_normal((N, self.action_size)))
-            with torch.no_grad():
-                out = self.net.act(self._tensor(norm_obs), noise)
-            action = out.action.cpu().numpy()
-            step = self.gym.step(self._pd_targets(self.gym.reference_targets(), action.astype(np.float64)))
-            bootstrap = np.zeros(N)
-            cut = np.flatnonzero(step.truncated)
-            if len(cut):
-                bootstrap[cut] = self._values(self.normalizer.normalize(self.observe.final(step, cut)))
-            self.buffer.push(
-                obs=norm_obs, action=action, log_prob=out.log_prob.cpu().numpy(), value=out.value.cpu().numpy(),
-                reward=step.reward, bootstrap_value=bootstrap, episode_id=res.episode_id,
-                terminated=step.terminated, truncated=step.truncated,
-            )  # fmt: skip
-            self.motion_weights.record(res.clip, step.terminated, step.truncated)
-            self.episode_return += step.reward
-            done = np.flatnonzero(step.done)
-            lengths += (res.episode_frame[done] + 1).tolist()
-            returns += self.episode_return[done].tolist()
-            failed += step.terminated[done].tolist()
-            self.episode_return[done] = 0.0
-            reward_sum += float(step.reward.mean())
-            for k in terms:
-                terms[k] += float(step.reward_terms[k].mean())
-            for k, v in step.info.items():
-                events[k] = events.get(k, 0.0) + v
-            self.result = step
-        self.last_value = self._values(self.normalizer.normalize(self.observe(self.result)))
-        if self.config.motion_weights.enabled:
-            self.gym.set_clip_weights(self.motion_weights.weights())
-        self.rollout_stats = {"charts/mean_reward": reward_sum / T, **{f"reward/{k}": v / T for k, v in terms.items()}}
-        # Episode ends per rule (term/<rule>) and blown-up simulations, per 1000 samples.
-        self.rollout_stats.update({f"charts/{k}_per_1k": 1000.0 * v / (T * N) for k, v in events.items()})
-        if lengths:
-            self.rollout_stats.update({"charts/episode_length": float(np.mean(lengths)),
-                                       "charts/episode_return": float(np.mean(returns)),
-                                       "charts/episode_fail_rate": float(np.mean(failed))})  # fmt: skip
+        # All of the rollout's noise at once: the same draws, in the same order, as one (N, A) draw per step.
+        noise = self.rng.standard_normal((T, N, self.action_size))
+        block = self.collector.next_block(actor_weights(self.net, self.normalizer), self.updates, T, T,
+                                          inputs={"noise": noise}, clip_weights=self._clip_weights())  # fmt: skip
+        if block.version != self.updates:
+            raise RuntimeError(f"rollout collected with the weights of update {block.version}, not {self.updates}")
+        self._store_rollout(block)
         return T * N
+
+    def _store_rollout(self, block: Block) -> None:
+        """The rollout into the buffer, its statistics into the normaliser, its ended episodes into the failure
+        rates, and its charts."""
+        f = block.frames
+        returns: list[float] = []
+        for t in range(block.steps):
+            self.normalizer.merge(combine_moments([report[t] for report in block.reports]))
+            terminated, truncated = f["terminated"][t], f["truncated"][t]
+            self.buffer.push(
+                obs=f["obs"][t], action=f["action"][t], log_prob=f["log_prob"][t], value=f["value"][t],
+                reward=f["reward"][t], bootstrap_value=f["bootstrap_value"][t], episode_id=f["episode_id"][t],
+                terminated=terminated, truncated=truncated,
+            )  # fmt: skip
+            self.motion_weights.record(f["clip"][t], terminated, truncated)
+            self.episode_return += f["reward"][t]
+            done = np.flatnonzero(terminated | truncated)
+            returns += self.episode_return[done].tolist()
+            self.episode_return[done] = 0.0
+        self.last_value = f["next_value"][-1].astype(np.float64)
+        self.rollout_stats = chart_metrics(block.charts)
+        if block.charts["episodes"]:
+            self.rollout_stats["charts/episode_return"] = float(np.mean(returns))
 
     # ----------------------------------------------------------------------------------------------- learning
     def _rollout_batch(self) -> dict[str, torch.Tensor]:
@@ -207,6 +201,7 @@ class PPOLearner:
                 epoch_kl.append(float(metrics["approx_kl"]))
             if p.target_kl is not None and epoch_kl and np.mean(epoch_kl) > p.target_kl:
                 break
+        self.updates += 1
         out = {f"losses/{k}": v / max(steps, 1) for k, v in sums.items()}
         out["losses/steps"] = float(steps)
         out["charts/action_std"] = float(torch.exp(self.net.log_std).mean())
@@ -226,13 +221,13 @@ class PPOLearner:
         """A frozen snapshot of the deterministic policy: the mean action under frozen normaliser statistics."""
         actor = copy.deepcopy(self.net.actor).eval()
         normalizer = copy.deepcopy(self.normalizer)
-        hinge_qpos, device, observe = self.hinge_qpos, self.device, self.observe
+        hinge_qpos, device, observe, network = self.hinge_qpos, self.device, self.observe, self.config.network
 
         def act(result: StepResult) -> np.ndarray:
             norm_obs = normalizer.normalize(observe(result))
             with torch.no_grad():
                 mean = actor(torch.as_tensor(norm_obs, device=device)).double().cpu().numpy()
-            return self._pd_targets(result.ref_next.qpos[:, hinge_qpos], mean)
+            return pd_targets(result.ref_next.qpos[:, hinge_qpos], mean, network)
 
         return act
 
@@ -243,19 +238,21 @@ class PPOLearner:
 
     # ----------------------------------------------------------------------------------------------- state
     def state_dict(self) -> dict[str, Any]:
-        """Networks, optimiser, normaliser, failure rates, the gym and per-character episode returns."""
+        """Networks, optimiser, normaliser, failure rates, the collector (gyms) and per-character episode returns."""
         return {
             "sizes": {"obs": self.obs_size, "action": self.action_size, "num_envs": self.num_envs},
             "net": self.net.state_dict(), "optimizer": self.optimizer.state_dict(),
             "normalizer": self.normalizer.state_dict(), "motion_weights": self.motion_weights.state_dict(),
-            "gym": self.gym.state_dict(), "episode_return": self.episode_return.copy(),
+            "collector": self.collector.state_dict(), "episode_return": self.episode_return.copy(),
+            "updates": self.updates,
         }  # fmt: skip
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restores :meth:`state_dict`.
 
         Raises:
-            ValueError: If the checkpoint was written for other observation/action sizes or character counts.
+            ValueError: If the checkpoint was written for other observation/action sizes or character counts, or
+                with another number of collector processes.
         """
         sizes = {"obs": self.obs_size, "action": self.action_size, "num_envs": self.num_envs}
         if state.get("sizes") != sizes:
@@ -267,9 +264,10 @@ class PPOLearner:
             raise ValueError(f"checkpoint networks do not match this config: {e}") from e
         self.normalizer.load_state_dict(state["normalizer"])
         self.motion_weights.load_state_dict(state["motion_weights"])
-        self.result = self.gym.load_state_dict(state["gym"])
+        self.collector.load_state_dict(state["collector"])
         self.episode_return = np.asarray(state["episode_return"], dtype=np.float64).copy()
+        self.updates = int(state["updates"])
         self.nan_guard = NanGuard({"net": self.net, "optimizer": self.optimizer})
 
     def close(self) -> None:
-        self.gym.close()
+        self.collector.close()

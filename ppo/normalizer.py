@@ -2,15 +2,19 @@
 
 ``normalize`` maps x to clip((x - mean) / max(std, epsilon), -clip, clip) on the masked entries and leaves the
 others (already bounded features such as the phase's sin/cos) as they are. Statistics change only through
-:meth:`RunningNormalizer.update`, which the learner calls on rollout observations only: evaluation reads them frozen.
+:meth:`RunningNormalizer.update` (or :meth:`RunningNormalizer.merge` of a batch's moments), on rollout observations
+only: evaluation reads them frozen.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
+
+Moments = tuple[int, np.ndarray, np.ndarray]
+"""A batch's sample count, mean (D,) and (biased) variance (D,)."""
 
 
 class RunningNormalizer:
@@ -53,18 +57,14 @@ class RunningNormalizer:
             raise ValueError(f"normalizer: expected shape (B, {self.size}), got {x.shape}")
         if self.frozen or len(x) == 0:
             return
-        x = x.astype(np.float64)
-        m = len(x)
-        batch_mean, batch_var = x.mean(axis=0), x.var(axis=0)
-        if self.count == 0:
-            self.mean, self.var = batch_mean, batch_var
-        else:
-            # Chan et al.: M2 = M2_a + M2_b + delta^2 n m / (n + m), with M2 = var * count.
-            n, total = self.count, self.count + m
-            delta = batch_mean - self.mean
-            self.mean = self.mean + delta * (m / total)
-            self.var = (self.var * n + batch_var * m + delta**2 * (n * m / total)) / total
-        self.count += m
+        self.merge(moments(x))
+
+    def merge(self, batch: Moments) -> None:
+        """Adds a batch given by its moments (no-op once ``max_samples`` is reached); for the batch's samples,
+        the same numbers as :meth:`update`."""
+        if self.frozen or batch[0] == 0:
+            return
+        self.count, self.mean, self.var = _chan((self.count, self.mean, self.var), batch)
 
     def normalize(self, x: np.ndarray) -> np.ndarray:
         """Normalised copy of ``x`` as float32. Shape: (..., D) -> (..., D)."""
@@ -84,6 +84,33 @@ class RunningNormalizer:
         self.count = int(state["count"])
         self.mean = np.asarray(state["mean"], dtype=np.float64).copy()
         self.var = np.asarray(state["var"], dtype=np.float64).copy()
+
+
+def moments(x: np.ndarray) -> Moments:
+    """Count, mean and variance of samples (B, D), in float64."""
+    x = x.astype(np.float64)
+    return len(x), x.mean(axis=0), x.var(axis=0)
+
+
+def combine_moments(parts: Sequence[Moments]) -> Moments:
+    """The moments of the union of several batches, merged in order; one batch's are returned as they are."""
+    out = parts[0]
+    for part in parts[1:]:
+        out = _chan(out, part)
+    return out
+
+
+def _chan(a: Moments, b: Moments) -> Moments:
+    """Moments of two batches together (Chan et al.): M2 = M2_a + M2_b + delta^2 n m / (n + m), M2 = var * count."""
+    n, mean, var = a
+    m, batch_mean, batch_var = b
+    if m == 0:
+        return a
+    if n == 0:
+        return b
+    total = n + m
+    delta = batch_mean - mean
+    return total, mean + delta * (m / total), (var * n + batch_var * m + delta**2 * (n * m / total)) / total
 
 
 def normalized_mask(layout: dict[str, slice], exclude: Iterable[str]) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""The PPO learner on the debug config: what a rollout stores, the bootstrap of truncated episodes, the policy."""
+"""The PPO learner on the debug config: what a rollout stores, the bootstrap of truncated episodes, the normaliser
+and the value after the rollout, the clip weights, the policy."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ import torch
 from common.character.humanoid import Humanoid
 from common.config import load_config
 from common.motion.dataset import load_motions
+from common.sim.collect import FrameSource, LocalCollector
+from ppo.actor import pd_targets
 from ppo.config import PPOTrackerConfig
 from ppo.learner import PPOLearner
 
@@ -29,15 +32,24 @@ def learner() -> Iterator[PPOLearner]:
     out.close()
 
 
+def _source(learner: PPOLearner) -> FrameSource:
+    """The in-process collector's gym and actor."""
+    assert isinstance(learner.collector, LocalCollector)  # collect.processes = 0 in the debug config
+    return learner.collector.source
+
+
 def test_zero_action_follows_the_reference(learner: PPOLearner) -> None:
-    reference = learner.gym.reference_targets()
-    np.testing.assert_array_equal(learner._pd_targets(reference, np.zeros_like(reference)), reference)
+    reference = _source(learner).res.ref_next.qpos[:, learner.hinge_qpos]
+    network = learner.config.network
+    np.testing.assert_array_equal(pd_targets(reference, np.zeros_like(reference), network), reference)
     # action_scale 0.5 rad per unit, clipped at 4 units
-    np.testing.assert_allclose(learner._pd_targets(reference, np.full_like(reference, 9.0)) - reference, 2.0)
+    np.testing.assert_allclose(pd_targets(reference, np.full_like(reference, 9.0), network) - reference, 2.0)
 
 
 def test_rollout_rows_and_truncated_bootstrap(learner: PPOLearner) -> None:
-    first_ids = learner.result.episode_id.copy()
+    source = _source(learner)
+    first_ids = source.res.episode_id.copy()
+    weights = learner.motion_weights.weights()
     assert learner.collect() == 8 * 8
     data = learner.buffer.latest(8)
     assert data["obs"].shape == (8, 8, learner.obs_size) and data["action"].shape == (8, 8, 28)
@@ -49,12 +61,26 @@ def test_rollout_rows_and_truncated_bootstrap(learner: PPOLearner) -> None:
     with torch.no_grad():
         log_prob, _, _ = learner.net.evaluate(torch.as_tensor(data["obs"][-1]), torch.as_tensor(data["action"][-1]))
     np.testing.assert_allclose(log_prob.numpy(), data["log_prob"][-1], rtol=1e-5)
-    np.testing.assert_allclose(learner.gym.clip_weights, learner.motion_weights.weights())
+    np.testing.assert_array_equal(source.gym.clip_weights, weights)  # the weights sent with the rollout
+
+
+def test_the_normaliser_and_the_value_after_the_rollout_are_the_actors(learner: PPOLearner) -> None:
+    source = _source(learner)
+    count = learner.normalizer.count
+    learner.collect()
+    # The learner merged the actor's per-step statistics: bit for bit the actor's own copy, 64 samples more.
+    actor = source.actor.normalizer
+    assert learner.normalizer.count == actor.count == count + 64
+    assert np.array_equal(learner.normalizer.mean, actor.mean) and np.array_equal(learner.normalizer.var, actor.var)
+    # GAE's value after the rollout: V of the state the gym is in now, under the statistics of the rollout's end.
+    norm_obs = torch.as_tensor(learner.normalizer.normalize(learner.observe(source.res)))
+    with torch.no_grad():
+        np.testing.assert_array_equal(learner.last_value, learner.net.value(norm_obs).double().numpy())
 
 
 def test_deterministic_policy_is_a_frozen_snapshot(learner: PPOLearner) -> None:
     policy = learner.policy()
-    result = learner.result
+    result = _source(learner).res
     targets = policy(result)
     count = learner.normalizer.count
     learner.collect()  # more statistics and a new state do not change the snapshot

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ppo.normalizer import RunningNormalizer, normalized_mask
+from ppo.normalizer import RunningNormalizer, combine_moments, moments, normalized_mask
 
 
 def test_running_statistics_hand_computed() -> None:
@@ -28,6 +28,29 @@ def test_running_statistics_match_the_whole_data_set() -> None:
         norm.update(chunk)
     np.testing.assert_allclose(norm.mean, x.mean(axis=0), rtol=1e-12)
     np.testing.assert_allclose(norm.var, x.var(axis=0), rtol=1e-10)
+
+
+def test_merged_moments_give_the_numbers_of_update() -> None:
+    """The collector's actor reports each step's moments; the learner merges them: bit for bit ``update``."""
+    x = np.random.default_rng(1).normal(3.0, 2.0, size=(3, 8, 4))
+    by_update, by_merge = RunningNormalizer(np.ones(4, dtype=bool)), RunningNormalizer(np.ones(4, dtype=bool))
+    for step in x:
+        by_update.update(step)
+        by_merge.merge(moments(step))
+    assert by_merge.count == by_update.count == 24
+    assert np.array_equal(by_merge.mean, by_update.mean) and np.array_equal(by_merge.var, by_update.var)
+
+
+def test_combined_moments_hand_computed() -> None:
+    # Batches {1, 3} and {5, 7, 9}: together mean 5, var (16 + 4 + 0 + 4 + 16) / 5 = 8; one batch stays as it is.
+    a, b = moments(np.array([[1.0], [3.0]])), moments(np.array([[5.0], [7.0], [9.0]]))
+    count, mean, var = combine_moments([a, b])
+    assert count == 5
+    np.testing.assert_allclose(mean, [5.0])
+    np.testing.assert_allclose(var, [8.0])
+    assert combine_moments([a]) is a
+    empty = (0, np.zeros(1), np.zeros(1))  # a process without characters left: adds nothing
+    assert combine_moments([empty, a]) is a and combine_moments([a, empty]) is a
 
 
 def test_normalize_clips_floors_the_std_and_skips_excluded_entries() -> None:

@@ -1,4 +1,5 @@
-"""``train-ppo`` end to end on the debug config: train, checkpoint, exact resume, evaluation, determinism, errors."""
+"""``train-ppo`` end to end on the debug config: train, checkpoint, exact resume, evaluation, determinism, errors, and
+a collector process (the same numbers, an exact resume)."""
 
 from __future__ import annotations
 
@@ -59,10 +60,11 @@ def test_debug_run_trains_checkpoints_and_evaluates(runs: dict[str, Path]) -> No
     assert 0.0 <= last["eval/survival"] <= 1.0 and np.isfinite(last["eval/mpjpe_g"])
     logged = {k for r in records for k in r}
     for key in ("losses/policy", "losses/value", "losses/entropy", "losses/approx_kl", "losses/clip_frac",
-                "reward/root_pos", "reward/body_pos", "charts/term/root_below_ref_per_1k", "charts/mean_reward",
-                "charts/action_std", "charts/clip_weight_max",
+                "reward/root_pos", "reward/body_pos", "charts/term/root_below_ref_per_1k", "charts/reward",
+                "charts/episode_length", "charts/terminated_share", "charts/action_std", "charts/clip_weight_max",
                 "perf/samples_per_s", "perf/gym_share", "perf/update_share"):  # fmt: skip
         assert key in logged, key
+    assert not logged & {"charts/mean_reward", "charts/episode_fail_rate"}  # the names before SuperTrack's
     state = read_checkpoint(run)[1]["learner"]
     assert state["normalizer"]["count"] == 6 * 64  # the normaliser's statistics are saved with the checkpoint
     assert state["motion_weights"]["failure_rate"].shape == (1,)
@@ -167,3 +169,40 @@ def test_a_checkpoint_that_cannot_be_written_ends_the_run_in_one_line_and_keeps_
                                "left on device; the checkpoints already there are intact (continue with --resume once "
                                "it can be written)")  # fmt: skip
     assert {p.name: p.read_bytes() for p in (run / "checkpoints").iterdir()} == before
+
+
+@pytest.fixture(scope="module")
+def collector_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """With one collector process: 6 iterations straight, and 4 iterations resumed to 6."""
+    root = tmp_path_factory.mktemp("ppo-collector")
+    out = {"straight": root / "straight", "resumed": root / "resumed"}
+    on = ("--set", "collect.processes=1")
+    _run(out["straight"], "--max-iterations", "6", *on)
+    _run(out["resumed"], "--max-iterations", "4", *on)
+    _run(out["resumed"], "--resume", "--max-iterations", "6", *on)
+    return out
+
+
+def test_a_collector_process_gives_the_in_process_numbers_and_resumes_exactly(
+    runs: dict[str, Path], collector_runs: dict[str, Path]
+) -> None:
+    """The learner draws the noise and waits for each rollout, and the worker's gym has the in-process seed: the
+    same numbers as collect.processes = 0, bit for bit, and again after a resume."""
+    in_process = _weights(runs["straight"])
+    for name in ("straight", "resumed"):
+        weights = _weights(collector_runs[name])
+        for key, value in in_process.items():
+            torch.testing.assert_close(weights[key], value, rtol=0, atol=0, msg=f"{name}: {key}")
+    assert _records(collector_runs["straight"]) == _records(runs["straight"])
+    assert _records(collector_runs["resumed"]) == _records(runs["resumed"])
+    collector = read_checkpoint(collector_runs["resumed"])[1]["learner"]["collector"]
+    assert len(collector["sources"]) == 1 and collector["pending"] is None  # nothing in flight between iterations
+
+
+@pytest.mark.parametrize(("value", "message"), [
+    ("-1", r"collect\.processes must be >= 0, got -1"),
+    ("9", r"collect\.processes \(9\) exceeds gym\.num_envs \(8\)"),
+])  # fmt: skip
+def test_a_bad_collector_count_fails_with_its_name(tmp_path: Path, value: str, message: str) -> None:
+    with pytest.raises(SystemExit, match=message):
+        _run(tmp_path / "x", "--set", f"collect.processes={value}")
