@@ -1,9 +1,10 @@
 """A run's learning curve from its ``metrics.jsonl``: per evaluation, the training minutes and samples, the shared
-evaluator's figures, and what the training episodes did since the previous evaluation (which termination rule
-ended them, how long they were, the mean reward and, for PPO, each reward term).
+evaluator's figures, and what the training episodes did since the previous evaluation (how long they were, the
+share that failed, which termination rule ended them, the mean reward and each reward term).
 
-Reads the file only (no simulation): fast, and the same numbers the run logged. Works for PPO and SuperTrack runs
-(columns a run did not log are left out).
+Reads the file only (no simulation): fast, and the same numbers the run logged. Works for PPO and SuperTrack runs,
+which log these under the same keys (:func:`common.sim.collect.chart_metrics`), and for PPO runs from before that
+(``charts/mean_reward``, ``charts/episode_fail_rate``); columns a run did not log are left out.
 
 Example::
 
@@ -21,7 +22,10 @@ from typing import Any
 
 EVAL = (("eval/mpjpe_g", "MPJPE-g", 1), ("eval/mpjpe_l", "MPJPE-l", 1), ("eval/survival", "surv", 2),
         ("eval/success", "succ", 2))  # fmt: skip
-TRAIN = (("charts/episode_length", "ep len", 1), ("charts/mean_reward", "reward", 3))
+TRAIN = (("charts/episode_length", "ep len", 1), ("charts/terminated_share", "failed", 2),
+         ("charts/reward", "reward", 3))  # fmt: skip
+# Keys of PPO runs logged before both learners shared one scheme -> today's.
+OLD_KEYS = {"charts/mean_reward": "charts/reward", "charts/episode_fail_rate": "charts/terminated_share"}
 
 
 def read_metrics(path: Path) -> list[dict[str, Any]]:
@@ -38,7 +42,9 @@ def read_metrics(path: Path) -> list[dict[str, Any]]:
 
 def curve_rows(records: list[dict[str, Any]]) -> tuple[list[str], list[list[str]]]:
     """One row per evaluation record: its minute and samples, the evaluation's figures, and the mean of every
-    training-record key of ``TRAIN``, ``charts/term/*`` and ``reward/*`` over the records since the previous one."""
+    training-record key of ``TRAIN``, ``charts/term/*`` and ``reward/*`` over the records since the previous one
+    (old key names read as today's)."""
+    records = [{OLD_KEYS.get(k, k): v for k, v in r.items()} for r in records]
     train_keys = sorted({k for r in records if "eval/mpjpe_g" not in r for k in r
                          if k.startswith(("charts/term/", "reward/"))})  # fmt: skip
     columns = [(k, name, d) for k, name, d in TRAIN if any(k in r for r in records)]
