@@ -8,16 +8,21 @@ next reference hinge angles + action_scale * clip(mean action).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
+import mujoco
 import numpy as np
 import torch
+from torch import Tensor, nn
 
 from common.character.humanoid import Humanoid
+from common.character.state import CharacterState
 from common.evaluation.evaluate import Policy
 from common.motion.library import MotionLibrary
 from common.run.directory import load_run_checkpoint
+from common.sim.features import OBSERVATION_KEYS, tracking_observation
 from common.sim.gym import StepResult
-from common.sim.observation import Observer
+from common.sim.observation import ObservationConfig, Observer, parc_features
 from ppo.config import PPOTrackerConfig
 from ppo.networks import ActorCritic
 from ppo.normalizer import RunningNormalizer
@@ -73,3 +78,120 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
         return result.ref_next.qpos[:, hinge_qpos] + scale * mean
 
     return act
+
+
+def load_actor(run_dir: Path, checkpoint: Path,
+               humanoid: Humanoid) -> tuple[PPOTrackerConfig, nn.Sequential, RunningNormalizer]:  # fmt: skip
+    """The run's config, the policy-mean network of ``checkpoint`` (eval mode) and its frozen observation normaliser:
+    what :func:`load_eval_policy` acts with. Arguments and errors as there."""
+    cfg, learner = load_run_checkpoint(PPOTrackerConfig, run_dir, checkpoint, "sizes", "normalizer", "net")
+    sizes, norm_state = learner["sizes"], learner["normalizer"]
+    if sizes["action"] != humanoid.nu:
+        raise ValueError(f"{checkpoint}: {sizes['action']} actions, the model has {humanoid.nu} actuators")
+    n = cfg.normalizer
+    normalizer = RunningNormalizer(np.asarray(norm_state["mask"], dtype=bool), n.clip, n.epsilon, n.max_samples)
+    normalizer.load_state_dict(norm_state)
+    net = ActorCritic(sizes["obs"], sizes["action"], cfg.network)
+    try:
+        net.load_state_dict(learner["net"])
+    except RuntimeError as e:
+        raise ValueError(f"{checkpoint}: network weights do not match {run_dir}/config.yaml: {e}") from e
+    return cfg, net.actor.eval(), normalizer
+
+
+class OnnxPolicy(nn.Module):
+    """The deterministic policy as one float32 graph: observation -> action mean and PD targets.
+
+    The frozen observation normaliser is folded in (clip((x - mean) / max(std, epsilon), -clip, clip) on the
+    normalised entries, the others passed through), then the actor MLP, the action clip and the targets of
+    :func:`load_eval_policy`. The observation itself (:mod:`common.sim.observation`) reads future reference frames of
+    the clip, so it stays with the caller.
+
+    Inputs (B characters):
+        observation: The run's observation (``observation.kind``; layout in the sidecar). Shape: (B, D).
+        ref_next_hinges: The reference's hinge angles one control step ahead, actuator order (rad). Shape: (B, A).
+
+    Outputs:
+        action: The policy mean, clipped to [-action_clip, action_clip] (action units). Shape: (B, A).
+        pd_targets: PD target angles ref_next_hinges + action_scale * action, actuator order (rad). Shape: (B, A).
+
+    Args:
+        actor: The policy-mean network, normalised observation (B, D) -> (B, A).
+        normalizer: The frozen observation normaliser.
+        action_scale: Radians of PD-target offset per action unit.
+        action_clip: Bound of the action (None: unclipped).
+    """
+
+    def __init__(self, actor: nn.Module, normalizer: RunningNormalizer, action_scale: float,
+                 action_clip: float | None) -> None:  # fmt: skip
+        super().__init__()
+        self.actor, self.action_scale, self.action_clip = actor, action_scale, action_clip
+        self.obs_clip = normalizer.clip
+        self.register_buffer("obs_mean", torch.as_tensor(normalizer.mean, dtype=torch.float32))
+        self.register_buffer("obs_std", torch.as_tensor(np.maximum(normalizer.std, normalizer.epsilon),
+                                                        dtype=torch.float32))  # fmt: skip
+        self.register_buffer("obs_mask", torch.as_tensor(normalizer.mask))
+
+    def forward(self, observation: Tensor, ref_next_hinges: Tensor) -> tuple[Tensor, Tensor]:
+        scaled = ((observation - self.obs_mean) / self.obs_std).clamp(-self.obs_clip, self.obs_clip)
+        action = self.actor(torch.where(self.obs_mask, scaled, observation))
+        if self.action_clip is not None:
+            action = action.clamp(-self.action_clip, self.action_clip)
+        return action, ref_next_hinges + self.action_scale * action
+
+
+def observation_layout(config: ObservationConfig, humanoid: Humanoid) -> dict[str, int]:
+    """{feature name: width} of the flat observation, in order (measured on a rest pose: no gym or clips needed)."""
+    nb = humanoid.num_bodies
+    rest = CharacterState(qpos=np.zeros((1, humanoid.model.nq)), qvel=np.zeros((1, humanoid.model.nv)),
+                          body_pos=np.zeros((1, nb, 3)), body_rot=np.tile([1.0, 0.0, 0.0, 0.0], (1, nb, 1)),
+                          body_linvel=np.zeros((1, nb, 3)), body_angvel=np.zeros((1, nb, 3)))  # fmt: skip
+    if config.kind == "local":
+        named = tracking_observation(rest, rest, np.zeros(1))
+        named = {k: named[k] for k in OBSERVATION_KEYS}
+    else:
+        named = parc_features(rest, dict.fromkeys(config.future_frames, rest), humanoid.hinge_qpos, humanoid.hinge_dof)
+    return {name: value.shape[-1] for name, value in named.items()}
+
+
+def onnx_module(run_dir: Path, checkpoint: Path, humanoid: Humanoid) -> tuple[nn.Module, dict[str, Any]]:
+    """The run's deterministic policy for ONNX export (:class:`OnnxPolicy`) and the description of its inputs and
+    outputs for the sidecar file.
+
+    Returns:
+        The module (float32, eval mode) and {"inputs": [...], "outputs": [...], "policy": {...}}: per tensor its
+        name, shape ("batch" first), meaning and, where it has one, the layout of its last axis.
+
+    Raises:
+        ValueError: As :func:`load_eval_policy`, and if the run's observation does not have the policy's width.
+    """
+    cfg, actor, normalizer = load_actor(run_dir, checkpoint, humanoid)
+    widths = observation_layout(cfg.observation, humanoid)
+    size, start, features = normalizer.size, 0, []
+    if sum(widths.values()) != size:
+        raise ValueError(f"{run_dir}/config.yaml: the '{cfg.observation.kind}' observation has "
+                         f"{sum(widths.values())} features, the policy in {checkpoint} reads {size}")  # fmt: skip
+    for name, width in widths.items():
+        normalised = bool(normalizer.mask[start : start + width].all())
+        features.append({"name": name, "width": width, "normalised": normalised})
+        start += width
+    actuators = [mujoco.mj_id2name(humanoid.model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) for i in range(humanoid.nu)]
+    net = cfg.network
+    spec = {
+        "inputs": [
+            {"name": "observation", "shape": ["batch", size], "layout": {"features": features},
+             "meaning": f"the '{cfg.observation.kind}' tracking observation of common.sim.observation, unnormalised "
+                        f"(future frames {list(cfg.observation.future_frames)} control steps ahead)"},
+            {"name": "ref_next_hinges", "shape": ["batch", humanoid.nu], "layout": {"actuators": actuators},
+             "meaning": "the reference's hinge angles one control step ahead (rad)"},
+        ],
+        "outputs": [
+            {"name": "action", "shape": ["batch", humanoid.nu], "layout": {"actuators": actuators},
+             "meaning": f"the policy mean, clipped to +-{net.action_clip} (action units)"},
+            {"name": "pd_targets", "shape": ["batch", humanoid.nu], "layout": {"actuators": actuators},
+             "meaning": f"PD target angles ref_next_hinges + {net.action_scale} * action (rad)"},
+        ],
+        "policy": {"action_scale_rad": net.action_scale, "action_clip": net.action_clip,
+                   "observation": cfg.observation.kind, "control_hz": humanoid.physics.control_hz},
+    }  # fmt: skip
+    return OnnxPolicy(actor, normalizer, net.action_scale, net.action_clip).eval(), spec
