@@ -2,7 +2,7 @@
 
 A run directory (written by :mod:`common.train.training`) holds ``config.yaml``, ``run_info.json``, ``metrics.jsonl``
 and ``checkpoints/``. This module reads them without importing any learner: the learner-specific policy loading lives in
-``<learner>/export.py`` and is reached through :func:`export_module`.
+``<learner>/export.py`` and is reached through the registry :data:`LEARNERS` (:func:`export_module`).
 """
 
 from __future__ import annotations
@@ -135,6 +135,8 @@ def load_run(path: str | Path, iteration: int | None = None) -> Run:
     learner = info.get("learner")
     if not learner:
         raise ReportError(f"{path}: run_info.json names no learner")
+    if learner not in LEARNERS:
+        raise ReportError(f"{path}: run_info.json names an unknown learner {learner!r} (known: {', '.join(LEARNERS)})")
     if info.get("policy_file"):
         # A run without training checkpoints (SAMCON): its learner's export module reads this one file.
         ckpt = path / str(info["policy_file"])
@@ -155,18 +157,27 @@ def load_run(path: str | Path, iteration: int | None = None) -> Run:
     )  # fmt: skip
 
 
+# The learners a run directory may name, and the module that loads each one's evaluation policy
+# (``load_eval_policy(run_dir, checkpoint, humanoid, library)``). A name read from a run directory is looked up
+# here and nowhere else, so a run directory cannot choose what is imported.
+LEARNERS: dict[str, str] = {
+    "supertrack": "supertrack.export",
+    "ppo": "ppo.export",
+    "samcon": "samcon.export",
+}
+
+
 def export_module(learner: str) -> ModuleType:
-    """The learner's ``export`` module (``<learner>/export.py``), which provides ``load_eval_policy``.
+    """The registered export module of ``learner`` (see :data:`LEARNERS`), which provides ``load_eval_policy``.
 
     Raises:
-        ReportError: If the learner has no export module.
+        ReportError: If the learner is not registered (nothing is imported then).
     """
-    try:
-        module = importlib.import_module(f"{learner}.export")
-    except ImportError as e:
-        raise ReportError(f"learner {learner!r} has no export module ({learner}/export.py): {e}") from e
+    if learner not in LEARNERS:
+        raise ReportError(f"unknown learner {learner!r} (known: {', '.join(LEARNERS)})")
+    module = importlib.import_module(LEARNERS[learner])
     if not hasattr(module, "load_eval_policy"):
-        raise ReportError(f"{learner}/export.py defines no load_eval_policy")
+        raise ReportError(f"{LEARNERS[learner]} defines no load_eval_policy")
     return module
 
 

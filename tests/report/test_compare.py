@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import re
 import shutil
@@ -121,6 +122,25 @@ def test_bad_directories_are_named(runs: dict[str, Path], tmp_path: Path) -> Non
         load_run(runs["ppo"], iteration=999)
     with pytest.raises(SystemExit, match="unfinished"):
         main([str(runs["ppo"]), str(unfinished), "--out", str(tmp_path / "r"), "--no-render"])
+
+
+def test_a_run_naming_an_unknown_learner_is_refused_in_one_line_without_any_import(
+        runs: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    foreign = tmp_path / "foreign"
+    shutil.copytree(runs["ppo"], foreign)
+    info = json.loads((foreign / "run_info.json").read_text())
+    (foreign / "run_info.json").write_text(json.dumps({**info, "learner": "os"}))  # an importable module's name
+    imported: list[str] = []
+    real_import = importlib.import_module
+    monkeypatch.setattr(importlib, "import_module", lambda name, *a: imported.append(name) or real_import(name, *a))
+    with pytest.raises(ReportError, match="unknown learner 'os'"):
+        load_run(foreign)
+    with pytest.raises(ReportError, match="unknown learner 'os'"):
+        export_module("os")
+    with pytest.raises(SystemExit) as stop:
+        main([str(foreign), "--out", str(tmp_path / "r"), "--no-render"])
+    assert "unknown learner 'os'" in str(stop.value) and "\n" not in str(stop.value)
+    assert imported == [] and not (tmp_path / "r").exists()
 
 
 def test_mixed_training_motion_sets_are_reported(runs: dict[str, Path], tmp_path: Path) -> None:
