@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from common.bundled_configs import config_help, default_config, resolve_config
 from common.character.humanoid import Humanoid
 from common.character.kinematics import ForwardKinematics
 from common.config import ConfigError, atomic_output, load_config
@@ -401,9 +402,13 @@ def clip_generator(seed: int, name: str) -> np.random.Generator:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="track-samcon", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--config", default="configs/samcon/default.yaml", help="YAML config file")
+    parser = argparse.ArgumentParser(
+        prog="track-samcon", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="SAMCON open-loop trajectories and linear feedback policies for clips, as a run directory.",
+        epilog="examples:\n  track-samcon --motions walk run --out runs/samcon-walk-run\n"
+               "  track-samcon --config debug --motions walk --out runs/samcon-debug",
+    )  # fmt: skip
+    parser.add_argument("--config", default=str(default_config("samcon")), help=config_help("samcon"))
     parser.add_argument("--motions", nargs="+", default=None, help="motions to track, overriding train.motions")
     parser.add_argument("--out", default=None, help="run directory (default: runs/samcon-<date>-<time>); must be new")
     parser.add_argument("--seed", type=int, default=None, help="sampling seed (train.seed)")
@@ -426,6 +431,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
     overrides = cli_overrides(args)
     try:
+        args.config = str(resolve_config(args.config, "samcon"))
         cfg = load_config(SamconConfig, args.config, overrides)
         humanoid = Humanoid(cfg.gym.physics)
         library = load_motions(list(cfg.train.motions), humanoid)

@@ -1,9 +1,7 @@
 """``train-supertrack``: train SuperTrack (world model + policy through it) on motion clips.
 
-Example::
-
-    train-supertrack --config configs/supertrack/default.yaml --motions walk --out runs/st-walk
-    train-supertrack --out runs/st-walk --resume --max-minutes 120   # continue the same run
+The command is the shared :func:`common.train.command.train_main` with SuperTrack's learner and its own option,
+``--init-from`` (fine-tuning from another run's networks).
 """
 
 from __future__ import annotations
@@ -23,40 +21,38 @@ from common.motion.library import MotionLibrary
 from common.run.checkpoint import CheckpointError
 from common.run.directory import read_checkpoint
 from common.sim.collect import CollectorError
-from common.train.training import Trainer, add_common_arguments, compat_meta, setup
+from common.train.command import TrainingCommand, train_main
 from supertrack.config import SuperTrackConfig
 from supertrack.learner import SuperTrackLearner, clip_weights
 
-DEFAULT_CONFIG = "configs/supertrack/default.yaml"
+DESCRIPTION = """\
+Train a SuperTrack tracker (Fussell et al. 2021): a world model learns the simulator from the gym's frames and the
+policy learns by back-propagating a tracking loss through it. The run is evaluated periodically by the shared
+evaluator (eval/...); the world model's accuracy is logged as world_model/...
+
+Config sections (any key can be overridden with --set section.key=value): train (budget, seed, device, logging,
+eval), gym (characters, physics, termination), world_model and policy (network sizes, batch, window, learning
+rate, loss weights; policy also sigma and alpha_deg), buffer (capacity, held-back characters), collect (gym steps
+per iteration, warm-up, worker processes, clip_weights), diagnostics (world-model error horizons). Bundled configs:
+default (a 2-core CPU), paper (the paper's sizes, for a GPU), debug (tests)."""
+
+EXAMPLES = (
+    "train-supertrack --motions walk --out runs/st-walk",
+    "train-supertrack --out runs/st-walk --resume --max-minutes 120   # continue the same run",
+    "train-supertrack --config paper --device cuda --motions all --out runs/st-all",
+    "train-supertrack --set 'collect.clip_weights={walk: 10}' --motions walk jog run   # oversample walk",
+    "train-supertrack --init-from runs/st-walk --motions run --out runs/st-run   # fine-tune walk to run",
+)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="train-supertrack",
-        description=(
-            "Train a SuperTrack tracker (Fussell et al. 2021): a world model learns the simulator from the gym's "
-            "frames and the policy learns by back-propagating a tracking loss through it. Writes config.yaml, "
-            "metrics.jsonl, TensorBoard events and checkpoints into the run directory and evaluates periodically "
-            "with the shared evaluator (eval/...); world-model accuracy is logged as world_model/..."
-        ),
-        epilog=(
-            "Config sections (configs/supertrack/*.yaml; any key can be overridden with --set section.key=value): "
-            "train (budget, seed, device, logging, eval), gym (characters, physics, termination), world_model and "
-            "policy (network sizes, batch, window, learning rate, loss weights; policy also sigma and alpha_deg), "
-            "buffer (capacity, held-back characters), collect (gym steps per iteration, warm-up, clip_weights: e.g. "
-            "--set 'collect.clip_weights={walk: 10}' oversamples walk), diagnostics "
-            "(world-model error horizons). Presets: paper.yaml (the paper's sizes, for a GPU), default.yaml "
-            "(a 2-core CPU), debug.yaml (tests)."
-        ),
-    )
-    add_common_arguments(parser, DEFAULT_CONFIG)
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """SuperTrack's own option: ``--init-from``."""
     parser.add_argument("--init-from", default=None, metavar="RUN_DIR|CHECKPOINT",
                         help="start the world model and policy (with the normalisers they were trained with) from "
                              "another SuperTrack run's newest checkpoint, or from a checkpoint file; optimisers, "
                              "buffer, gym and counters start fresh: fine-tuning, e.g. a walk run as the start for "
                              "run. The network sizes must match. Recorded in run_info.json; not with "
                              "--resume")  # fmt: skip
-    return parser
 
 
 def _read_init(path: str) -> tuple[Path, dict[str, Any]]:
@@ -85,47 +81,56 @@ def _check_init_fits(source: Path, state: dict[str, Any], cfg: SuperTrackConfig,
                              "the networks must have the same sizes")  # fmt: skip
 
 
+def _prepare(args: argparse.Namespace) -> tuple[Path, dict[str, Any]] | None:
+    """The ``--init-from`` checkpoint, read before anything is written."""
+    if args.init_from is None:
+        return None
+    if args.resume:
+        sys.exit("error: --init-from starts a new run from another run's networks; --resume continues this run's "
+                 "own checkpoint: use one or the other")  # fmt: skip
+    return _read_init(args.init_from)
+
+
+def _check(cfg: SuperTrackConfig, humanoid: Humanoid, library: MotionLibrary,
+           init: tuple[Path, dict[str, Any]] | None) -> None:  # fmt: skip
+    """What only the model and motions can validate, before the run directory is made."""
+    clip_weights(cfg, library)
+    if init is not None:
+        _check_init_fits(*init, cfg, humanoid)
+
+
+def _info(init: tuple[Path, dict[str, Any]] | None) -> dict[str, Any]:
+    return {} if init is None else {"init_from": str(init[0]), "init_iteration": init[1].get("iteration")}
+
+
+def _make_learner(cfg: SuperTrackConfig, humanoid: Humanoid, library: MotionLibrary, rng: np.random.Generator,
+                  init: tuple[Path, dict[str, Any]] | None) -> SuperTrackLearner:  # fmt: skip
+    learner = SuperTrackLearner(cfg, humanoid, library, rng)
+    if init is not None:
+        try:
+            learner.init_networks(init[1]["learner"])
+        except BaseException:
+            learner.close()
+            raise
+        print(f"networks from {init[0]} (iteration {init[1].get('iteration')}, {init[1].get('samples')} samples)")
+    return learner
+
+
+COMMAND = TrainingCommand(
+    name="supertrack", prog="train-supertrack", config_cls=SuperTrackConfig, description=DESCRIPTION,
+    examples=EXAMPLES, make_learner=_make_learner, add_arguments=add_arguments, prepare=_prepare, check=_check,
+    info=_info, user_errors=(CollectorError,),
+)  # fmt: skip
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command's argument parser (for ``--help`` and tests)."""
+    return COMMAND.parser()
+
+
 def run(argv: Sequence[str] | None = None) -> EvalResult:
     """Parses ``argv``, trains to the configured budget and returns the final evaluation."""
-    args = build_parser().parse_args(argv)
-    init = None
-    if args.init_from is not None:
-        if args.resume:
-            sys.exit("error: --init-from starts a new run from another run's networks; --resume continues this run's "
-                     "own checkpoint: use one or the other")  # fmt: skip
-        init = _read_init(args.init_from)
-
-    def check(cfg: SuperTrackConfig, humanoid: Humanoid, library: MotionLibrary) -> None:
-        """What only the model and motions can validate, before the run directory is made."""
-        clip_weights(cfg, library)
-        if init is not None:
-            _check_init_fits(*init, cfg, humanoid)
-
-    extra = {} if init is None else {"init_from": str(init[0]), "init_iteration": init[1].get("iteration")}
-    cfg, run_dir, humanoid, library = setup(SuperTrackConfig, args, "supertrack", check=check, info=extra)
-    rng = np.random.default_rng(cfg.train.seed)
-    try:
-        learner = SuperTrackLearner(cfg, humanoid, library, rng)
-    except CollectorError as e:
-        sys.exit(f"error: {e}")
-    try:
-        if init is not None:
-            learner.init_networks(init[1]["learner"])
-            print(f"networks from {init[0]} (iteration {init[1].get('iteration')}, {init[1].get('samples')} samples)")
-        trainer = Trainer(learner, cfg.train, run_dir, library, humanoid, compat_meta(cfg, humanoid, "supertrack"),
-                          "supertrack", rng)  # fmt: skip
-        if args.resume:
-            try:
-                trainer.resume()
-            except ValueError as e:
-                sys.exit(f"error: {e}")
-        result = trainer.run()
-    except CollectorError as e:  # the worker's traceback is in the message; the last checkpoint is intact
-        sys.exit(f"error: {e}")
-    finally:
-        learner.close()
-    print(result.table())
-    return result
+    return train_main(COMMAND, argv)
 
 
 def main(argv: Sequence[str] | None = None) -> None:

@@ -23,6 +23,8 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
+from common.bundled_configs import config_help, default_config
+from common.bundled_configs import resolve_config as find_config
 from common.character.humanoid import Humanoid
 from common.config import ConfigError, load_config, to_dict
 from common.evaluation.evaluate import EvalConfig, EvalResult, Policy, evaluate
@@ -109,12 +111,12 @@ def gym_config(cfg: Any) -> GymConfig:
     return replace(cfg.gym, seed=cfg.train.seed + cfg.gym.seed)
 
 
-def add_common_arguments(parser: argparse.ArgumentParser, default_config: str) -> None:
-    """The options both training commands share."""
+def add_common_arguments(parser: argparse.ArgumentParser, command: str) -> None:
+    """The options both training commands share; ``command`` names the bundled config folder (``configs/<command>``)."""
     parser.add_argument("--config", default=None,
-                        help=f"YAML config file (default: {default_config}; with --resume, the run's own "
-                             "config.yaml, so that --out and --resume are enough to continue a run)")  # fmt: skip
-    parser.set_defaults(default_config=default_config)
+                        help=config_help(command) + " (with --resume: the run's own config.yaml, so that --out and "
+                             "--resume are enough to continue a run)")  # fmt: skip
+    parser.set_defaults(default_config=str(default_config(command)), config_command=command)
     parser.add_argument("--motions", nargs="+", default=None,
                         help="motions to track, overriding train.motions: bundled clip names (walk, run, ...), 'all', "
                              "'long', DeepMimic .txt files, folders, or a motion dataset .h5")  # fmt: skip
@@ -150,6 +152,8 @@ def resolve_config(cls: type, args: argparse.Namespace) -> Any:
     if args.config is None:
         saved = Path(args.out) / "config.yaml" if args.resume and args.out else None
         args.config = str(saved) if saved is not None and saved.is_file() else args.default_config
+    else:
+        args.config = str(find_config(args.config, args.config_command))
     overrides = list(args.overrides)
     if args.motions is not None:
         overrides.append("train.motions=[" + ", ".join(repr(m) for m in args.motions) + "]")
