@@ -28,13 +28,13 @@ from common.motion.library import MotionLibrary
 from common.sim.buffer import CyclicBuffer
 from common.sim.collect import Block, CollectorSpec, chart_metrics, make_collector
 from common.sim.gym import StepResult
+from common.sim.motion_weights import MotionWeights
 from common.sim.observation import Observer
 from common.train.training import NanGuard, gym_config
 from ppo.actor import GymActor, actor_weights, frame_fields, observation_layout, pd_targets
 from ppo.config import PPOTrackerConfig
 from ppo.gae import gae
 from ppo.losses import ppo_loss
-from ppo.motion_weights import MotionWeights
 from ppo.networks import ActorCritic
 from ppo.normalizer import RunningNormalizer, combine_moments, normalized_mask
 

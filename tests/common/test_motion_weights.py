@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from common.config import ConfigError, from_dict
-from ppo.config import MotionWeightConfig
-from ppo.motion_weights import MotionWeights, bucket_weights
+from common.sim.motion_weights import MotionWeightConfig, MotionWeights, bucket_weights
 
 THRESHOLDS, WEIGHTS = (0.1, 0.3, 0.5, 0.7), (0.1, 0.3, 0.5, 0.7, 1.0)
 

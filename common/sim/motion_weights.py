@@ -9,11 +9,43 @@ policy has mastered keep a share of the resets while the hard ones get most of t
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ppo.config import MotionWeightConfig
+
+@dataclass(frozen=True)
+class MotionWeightConfig:
+    """PARC's adaptive motion weighting: clips that fail more often are sampled more often at reset.
+
+    Attributes:
+        enabled: Feed the weights to the gym (False: uniform clip sampling; failure rates are still tracked).
+        ema_weight: w in rate <- (1 - w) rate + w * failed, per finished episode.
+        init_failure_rate: Failure rate every clip starts with (1: every clip is presumed hard).
+        thresholds: Upper bounds of the failure-rate buckets, increasing.
+        bucket_weights: Sampling weight of each bucket; one more than ``thresholds`` (the last is for rates above
+            the last threshold).
+        min_weight: Lower bound of every weight.
+    """
+
+    enabled: bool = True
+    ema_weight: float = 0.01
+    init_failure_rate: float = 1.0
+    thresholds: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7)
+    bucket_weights: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 1.0)
+    min_weight: float = 0.01
+
+    def __post_init__(self) -> None:
+        if len(self.bucket_weights) != len(self.thresholds) + 1:
+            raise ValueError("bucket_weights needs exactly one entry more than thresholds")
+        if list(self.thresholds) != sorted(self.thresholds):
+            raise ValueError(f"thresholds must increase, got {self.thresholds}")
+        if not 0.0 < self.ema_weight <= 1.0:
+            raise ValueError(f"ema_weight must lie in (0, 1], got {self.ema_weight}")
+        if self.min_weight <= 0 or min(self.bucket_weights) < 0:
+            raise ValueError("min_weight must be positive and bucket_weights non-negative")
+
 
 
 def bucket_weights(
