@@ -4,11 +4,11 @@ with which the collector steps the characters.
 A frame (the step from gym state s_t): the actor observes s_t (:mod:`common.sim.observation`), adds the observations
 to its copy of the normaliser's statistics, acts on the normalised observation with the learner's noise eps
 (a = mu + sigma * eps, PD targets = reference hinge angles of the next frame + action_scale * clip(a)) and stores the
-normalised observation, a, log pi(a), V(s_t) and the clip. After the step it adds the reward, V of the state a
-truncated episode reached (``bootstrap_value``, 0 elsewhere) and, at a rollout's last step, V of every state reached
-(``next_value``, GAE's value after the rollout; 0 in the other rows). It reports each step's observation moments
-(:meth:`GymActor.block_report`); the learner adds them to its own normaliser in the same order, so that its
-statistics are the ones the actor used.
+normalised observation, a, log pi(a) and V(s_t) (the collector adds the clip). After the step it adds the reward,
+V of the state a truncated episode reached (``bootstrap_value``, 0 elsewhere) and, at a rollout's last step, V of
+every state reached (``next_value``, GAE's value after the rollout; 0 in the other rows). It reports each step's
+observation moments (:meth:`GymActor.block_report`); the learner adds them to its own normaliser in the same order,
+so that its statistics are the ones the actor used.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def frame_fields(obs_size: int, action_size: int) -> dict[str, tuple[tuple[int, 
     """The fields :class:`GymActor` writes per frame (see the module docstring)."""
     return {
         "obs": ((obs_size,), "float32"), "action": ((action_size,), "float32"), "log_prob": ((), "float32"),
-        "value": ((), "float32"), "clip": ((), "int64"), "reward": ((), "float64"),
+        "value": ((), "float32"), "reward": ((), "float64"),
         "bootstrap_value": ((), "float32"), "next_value": ((), "float32"),
     }  # fmt: skip
 
@@ -121,7 +121,7 @@ class GymActor:
         action = out.action.cpu().numpy()
         targets = pd_targets(res.ref_next.qpos[:, self.hinge_qpos], action.astype(np.float64), self.network)
         return targets, {"obs": norm_obs, "action": action, "log_prob": out.log_prob.cpu().numpy(),
-                         "value": out.value.cpu().numpy(), "clip": res.clip}  # fmt: skip
+                         "value": out.value.cpu().numpy()}  # fmt: skip
 
     def after_step(self, res: StepResult, last: bool) -> dict[str, np.ndarray]:
         """The frame's reward, bootstrap value and, at the rollout's last step, the value after it."""

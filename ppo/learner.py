@@ -38,8 +38,6 @@ from ppo.losses import ppo_loss
 from ppo.networks import ActorCritic
 from ppo.normalizer import RunningNormalizer, combine_moments, normalized_mask
 
-_LOG_CLIP_LIMIT = 20  # clips whose failure rates are logged one by one
-
 
 class PPOLearner:
     """DeepMimic / PARC-style PPO motion tracker.
@@ -101,7 +99,7 @@ class PPOLearner:
 
     # ----------------------------------------------------------------------------------------------- acting
     def _clip_weights(self) -> np.ndarray | None:
-        return self.motion_weights.weights() if self.config.motion_weights.enabled else None
+        return self.motion_weights.gym_weights()
 
     def _tensor(self, x: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(x, dtype=torch.float32, device=self.device)
@@ -131,11 +129,11 @@ class PPOLearner:
                 reward=f["reward"][t], bootstrap_value=f["bootstrap_value"][t], episode_id=f["episode_id"][t],
                 terminated=terminated, truncated=truncated,
             )  # fmt: skip
-            self.motion_weights.record(f["clip"][t], terminated, truncated)
             self.episode_return += f["reward"][t]
             done = np.flatnonzero(terminated | truncated)
             returns += self.episode_return[done].tolist()
             self.episode_return[done] = 0.0
+        self.motion_weights.record_block(f)
         self.last_value = f["next_value"][-1].astype(np.float64)
         self.rollout_stats = chart_metrics(block.charts)
         if block.charts["episodes"]:
@@ -206,15 +204,8 @@ class PPOLearner:
         out["losses/steps"] = float(steps)
         out["charts/action_std"] = float(torch.exp(self.net.log_std).mean())
         out.update(self.rollout_stats)
-        out.update(self._weight_charts())
+        out.update(self.motion_weights.charts())
         return out
-
-    def _weight_charts(self) -> dict[str, float]:
-        rate, weights = self.motion_weights.failure_rate, self.motion_weights.weights()
-        return {
-            "charts/failure_rate_mean": float(rate.mean()), "charts/failure_rate_max": float(rate.max()),
-            "charts/clip_weight_min": float(weights.min()), "charts/clip_weight_max": float(weights.max()),
-        }  # fmt: skip
 
     # ----------------------------------------------------------------------------------------------- evaluation
     def policy(self) -> Policy:
@@ -233,8 +224,7 @@ class PPOLearner:
 
     def diagnostics(self) -> dict[str, float]:
         """Failure rate of each clip (of the first 20) at evaluation time."""
-        rates, names = self.motion_weights.failure_rate, self.library.names[:_LOG_CLIP_LIMIT]
-        return {f"charts/failure_rate/{name}": float(rates[i]) for i, name in enumerate(names)}
+        return self.motion_weights.clip_charts(self.library.names)
 
     # ----------------------------------------------------------------------------------------------- state
     def state_dict(self) -> dict[str, Any]:

@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass, field
 
 from common.sim.gym import GymConfig
+from common.sim.motion_weights import MotionWeightConfig
 from common.train.training import TrainConfig
 
 
@@ -245,6 +246,8 @@ class SuperTrackConfig:
         policy: The policy.
         buffer: Replay storage.
         collect: Gym steps per iteration.
+        motion_weights: PARC's adaptive clip weights for the gym's starts (:mod:`common.sim.motion_weights`, the
+            implementation PPO uses), multiplied with ``collect.clip_weights``; off by default.
         diagnostics: World-model error measurement.
     """
 
@@ -254,6 +257,7 @@ class SuperTrackConfig:
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     buffer: BufferConfig = field(default_factory=BufferConfig)
     collect: CollectConfig = field(default_factory=CollectConfig)
+    motion_weights: MotionWeightConfig = field(default_factory=lambda: MotionWeightConfig(enabled=False))
     diagnostics: DiagnosticsConfig = field(default_factory=DiagnosticsConfig)
 
     def __post_init__(self) -> None:

@@ -33,6 +33,7 @@ from common.evaluation.evaluate import Policy as EvalPolicy
 from common.motion.library import MotionLibrary
 from common.sim.buffer import CyclicBuffer
 from common.sim.collect import Block, CollectorSpec, chart_metrics, make_collector
+from common.sim.motion_weights import MotionWeights
 from common.train.averaging import WeightAverage
 from common.train.training import NanGuard, gym_config
 from supertrack.actor import Actor, GymActor
@@ -87,7 +88,7 @@ class SuperTrackLearner:
 
     def __init__(self, cfg: SuperTrackConfig, humanoid: Humanoid, library: MotionLibrary,
                  rng: np.random.Generator) -> None:  # fmt: skip
-        self.cfg, self.humanoid, self.rng = cfg, humanoid, rng
+        self.cfg, self.humanoid, self.library, self.rng = cfg, humanoid, library, rng
         self.device = torch.device(cfg.train.device)
         n_bodies, n_joints = humanoid.num_bodies, len(humanoid.joint_groups)
         min_std = cfg.buffer.normalizer_min_std
@@ -123,6 +124,8 @@ class SuperTrackLearner:
             Actor(humanoid, self.policy_average.module, cfg.policy.alpha)
         self._charts: dict[str, float] = {}
         self._rates: dict[str, float] = {}
+        self.fixed_clip_weights = clip_weights(cfg, library)
+        self.motion_weights = MotionWeights(library.num_clips, cfg.motion_weights)
         self.updates = 0
         c = cfg.collect
         # The gym's own actor: a CPU copy of the policy (in a worker process when collect.processes >= 1), in bf16
@@ -132,7 +135,7 @@ class SuperTrackLearner:
         spec = CollectorSpec(gym=gym_config(cfg), library=library, humanoid=humanoid, actor_factory=factory,
                              fields=gym_fields(n_bodies, n_joints), noise_seed=cfg.train.seed,
                              max_steps=max(c.steps_per_iteration, c.warmup_steps),
-                             clip_weights=clip_weights(cfg, library),
+                             clip_weights=self._clip_weights(),
                              torch_threads=cfg.train.torch_threads)  # fmt: skip
         self.collector = make_collector(spec, c.processes, self.policy_net.state_dict())
 
@@ -148,12 +151,17 @@ class SuperTrackLearner:
         c = self.cfg.collect
         steps = max(c.steps_per_iteration, c.warmup_steps - self.train_buffer.total_pushed)
         next_steps = max(c.steps_per_iteration, c.warmup_steps - self.train_buffer.total_pushed - steps)
-        block = self.collector.next_block(self.policy_net.state_dict(), self.updates, steps, next_steps)
+        block = self.collector.next_block(self.policy_net.state_dict(), self.updates, steps, next_steps,
+                                          clip_weights=self._clip_weights())  # fmt: skip
+        self.motion_weights.record_block(block.frames)
         self._push(block)
         for k, v in block.charts.items():
             self._charts[k] = self._charts.get(k, 0.0) + v
         self._rates["new"] = self._rates.get("new", 0.0) + block.steps * self.cfg.train_envs
         return block.steps * self.gym_envs
+
+    def _clip_weights(self) -> np.ndarray | None:
+        return self.motion_weights.gym_weights(self.fixed_clip_weights)
 
     @property
     def gym_envs(self) -> int:
@@ -165,7 +173,7 @@ class SuperTrackLearner:
         n_train = self.cfg.train_envs
         collected_at = np.full(self.gym_envs, block.version, dtype=np.int64)
         for t in range(block.steps):
-            frame = {**{k: v[t] for k, v in block.frames.items()}, "collected_at": collected_at}
+            frame = {**{k: v[t] for k, v in block.frames.items() if k != "clip"}, "collected_at": collected_at}
             self.train_buffer.push(**{k: v[:n_train] for k, v in frame.items()})
             self.val_buffer.push(**{k: v[n_train:] for k, v in frame.items()})
 
@@ -224,6 +232,7 @@ class SuperTrackLearner:
                                prefix="world_model/val_")  # fmt: skip
         out.update(open_loop_errors(self.world_model, self.train_buffer, d.horizons, d.batch,
                                     np.random.default_rng(d.seed), prefix="world_model/train_"))  # fmt: skip
+        out.update(self.motion_weights.clip_charts(self.library.names))
         return out
 
     def state_dict(self) -> dict[str, Any]:
@@ -232,7 +241,7 @@ class SuperTrackLearner:
             "world_optimizer": self.world_optimizer.state_dict(),
             "policy_optimizer": self.policy_optimizer.state_dict(), "collector": self.collector.state_dict(),
             "train_buffer": self.train_buffer.state_dict(), "val_buffer": self.val_buffer.state_dict(),
-            "updates": self.updates,
+            "updates": self.updates, "motion_weights": self.motion_weights.state_dict(),
             **({} if self.policy_average is None else {"policy_average": self.policy_average.state_dict()}),
         }  # fmt: skip
 
@@ -246,6 +255,8 @@ class SuperTrackLearner:
         self.val_buffer.load_state_dict(state["val_buffer"])
         self.collector.load_state_dict(state["collector"])
         self.updates = int(state["updates"])
+        if "motion_weights" in state:  # runs from before the adaptive weights keep their initial rates
+            self.motion_weights.load_state_dict(state["motion_weights"])
         if self.policy_average is not None:
             self.policy_average.load_state_dict(state["policy_average"])
         self._new_guards()
@@ -402,7 +413,8 @@ class SuperTrackLearner:
         c, self._charts = self._charts, {}
         if not c:
             return {}
-        return {**chart_metrics(c), "charts/buffer_frames": float(len(self.train_buffer))}
+        charts = {**chart_metrics(c), **self.motion_weights.charts()}
+        return {**charts, "charts/buffer_frames": float(len(self.train_buffer))}
 
 
 def _steps(cfg: SuperTrackConfig) -> Steps:

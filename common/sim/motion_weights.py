@@ -8,7 +8,7 @@ policy has mastered keep a share of the resets while the hard ones get most of t
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -91,10 +91,38 @@ class MotionWeights:
             c = clips[n]
             self.failure_rate[c] = (1.0 - w) * self.failure_rate[c] + w * float(terminated[n])
 
+    def record_block(self, frames: Mapping[str, np.ndarray]) -> None:
+        """Updates the rates with the episodes that ended in a collector's block, step by step.
+
+        Args:
+            frames: The block's ``clip``, ``terminated`` and ``truncated`` fields. Shape: (T, N) each.
+        """
+        for t in range(len(frames["clip"])):
+            self.record(frames["clip"][t], frames["terminated"][t], frames["truncated"][t])
+
     def weights(self) -> np.ndarray:
         """Sampling weight of every clip. Shape: (C,)."""
         c = self.config
         return bucket_weights(self.failure_rate, c.thresholds, c.bucket_weights, c.min_weight)
+
+    def gym_weights(self, fixed: np.ndarray | None = None) -> np.ndarray | None:
+        """The gym's RSI weight per clip: the adaptive weights (times ``fixed``, a learner's fixed per-clip weights)
+        when enabled, else ``fixed`` alone (None: uniform)."""
+        if not self.config.enabled:
+            return fixed
+        return self.weights() if fixed is None else self.weights() * fixed
+
+    def charts(self) -> dict[str, float]:
+        """The rates' and weights' extremes, for the training log."""
+        rate, weights = self.failure_rate, self.weights()
+        return {
+            "charts/failure_rate_mean": float(rate.mean()), "charts/failure_rate_max": float(rate.max()),
+            "charts/clip_weight_min": float(weights.min()), "charts/clip_weight_max": float(weights.max()),
+        }  # fmt: skip
+
+    def clip_charts(self, names: Sequence[str], limit: int = 20) -> dict[str, float]:
+        """Failure rate of each clip (of the first ``limit``), by name, for the evaluation log."""
+        return {f"charts/failure_rate/{name}": float(self.failure_rate[i]) for i, name in enumerate(names[:limit])}
 
     def state_dict(self) -> dict[str, Any]:
         return {"failure_rate": self.failure_rate.copy()}

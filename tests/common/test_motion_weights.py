@@ -55,3 +55,27 @@ def test_config_checks_the_buckets() -> None:
         from_dict(MotionWeightConfig, {"thresholds": [0.1], "bucket_weights": [0.1]})
     with pytest.raises(ConfigError, match="thresholds must increase"):
         from_dict(MotionWeightConfig, {"thresholds": [0.5, 0.1], "bucket_weights": [0.1, 0.2, 0.3]})
+
+
+def test_gym_weights_multiply_a_learners_fixed_weights_and_follow_enabled() -> None:
+    mw = MotionWeights(3, MotionWeightConfig())
+    mw.failure_rate[:] = [0.05, 0.4, 0.9]  # buckets 0.1, 0.5, 1.0
+    np.testing.assert_allclose(mw.gym_weights(), [0.1, 0.5, 1.0])
+    np.testing.assert_allclose(mw.gym_weights(np.array([10.0, 1.0, 2.0])), [1.0, 0.5, 2.0])
+    off = MotionWeights(3, MotionWeightConfig(enabled=False))
+    assert off.gym_weights() is None
+    np.testing.assert_allclose(off.gym_weights(np.array([10.0, 1.0, 2.0])), [10.0, 1.0, 2.0])
+
+
+def test_a_block_is_recorded_step_by_step_in_character_order() -> None:
+    """Two steps of three characters; the same clip ending twice in one step is two EMA updates, in order."""
+    mw = MotionWeights(2, MotionWeightConfig(ema_weight=0.5))
+    frames = {"clip": np.array([[0, 0, 1], [0, 1, 1]]),
+              "terminated": np.array([[True, False, False], [False, False, True]]),
+              "truncated": np.array([[False, True, False], [False, False, False]])}  # fmt: skip
+    mw.record_block(frames)
+    # Step 0: clip 0 fails (1.0), then succeeds (0.5). Step 1: clip 1 fails (1.0). Weights: 0.5 is not < 0.5, so 0.7.
+    np.testing.assert_allclose(mw.failure_rate, [0.5, 1.0])
+    assert mw.charts() == {"charts/failure_rate_mean": 0.75, "charts/failure_rate_max": 1.0,
+                           "charts/clip_weight_min": 0.7, "charts/clip_weight_max": 1.0}  # fmt: skip
+    assert mw.clip_charts(["walk", "run"], limit=1) == {"charts/failure_rate/walk": 0.5}

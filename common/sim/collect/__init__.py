@@ -3,7 +3,8 @@
 The collector knows no learner. It gets a picklable factory that builds a :class:`FrameActor` (the learner's policy
 copy plus exploration noise, turning a gym state into PD targets and the learner's per-frame fields), the layout of
 those fields and the policy's weights, and it hands back whole blocks of frames, (T, N, *shape) per field, with the
-bookkeeping fields of :mod:`common.sim.buffer` (``episode_id``, ``terminated``, ``truncated``) filled in.
+bookkeeping fields of :mod:`common.sim.buffer` (``episode_id``, ``terminated``, ``truncated``) and the frame's ``clip``
+filled in.
 
 - ``processes = 0`` (:class:`LocalCollector`): the gym steps in the learner's process when a block is asked for,
   with the weights given then: the learner's classic collect-then-update loop.

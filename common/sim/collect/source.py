@@ -21,6 +21,9 @@ FieldLayout = Mapping[str, tuple[tuple[int, ...], np.dtype | str]]
 Weights = Mapping[str, torch.Tensor]
 Inputs = Mapping[str, np.ndarray]
 
+# Written for every frame besides the buffer's bookkeeping: the clip of the episode the frame belongs to.
+EPISODE_FIELDS: dict[str, tuple[tuple[int, ...], np.dtype]] = {"clip": ((), np.dtype(np.int64))}
+
 
 class CollectorError(RuntimeError):
     """A collector process failed (its traceback is in the message) or died."""
@@ -81,8 +84,9 @@ class CollectorSpec:
     inputs: FieldLayout = field(default_factory=dict)
 
     def layout(self) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
-        """The block's fields: the actor's plus the buffer's bookkeeping fields."""
-        return {**_resolved(self.fields), **BOOKKEEPING_FIELDS}
+        """The block's fields: the actor's, the buffer's bookkeeping fields and ``clip`` (the clip of the episode
+        the frame belongs to, for adaptive clip weights: :mod:`common.sim.motion_weights`)."""
+        return {**_resolved(self.fields), **BOOKKEEPING_FIELDS, **EPISODE_FIELDS}
 
     def input_layout(self) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
         """The block inputs' fields (without the leading (T, N))."""
@@ -184,6 +188,7 @@ class FrameSource:
                 out[name][t] = value
             out["episode_id"][t] = prev.episode_id * self.parts + self.part
             out["terminated"][t], out["truncated"][t] = res.terminated, res.truncated
+            out["clip"][t] = prev.clip
             add_step(charts, res, prev.episode_frame)
             self.res = res
         charts["collect_s"] = time.perf_counter() - start
