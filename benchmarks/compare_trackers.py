@@ -15,7 +15,12 @@ Scheduling (``--parallel``):
 A run directory that already holds a finished run of the same command is reused; an unfinished one is resumed
 (``--resume``), so an interrupted suite continues where it stopped.
 
-Suites: walk, run, jump, locomotion (walk, jog, run, stealthy_walk, zombie_walk), all20 (the 20 bundled clips).
+Suites: walk, run, jump, locomotion (walk, jog, run, stealthy_walk, zombie_walk), all20 (the 20 bundled clips), and
+split, the generalisation protocol: train on SPLIT_TRAIN (15 short clips and the 9 long ones), judge on SPLIT_TEST
+(5 short clips never trained on: ``report/``) and on the training clips (``report-train/``). The split was fixed
+once, before any run was judged on it, and is never tuned: one clip of each motion family whose other members are in
+training (walk: stealthy_walk, zombie_walk, long_walk*; jog: run; sideflip: backflip, cartwheel; kick: spinkick,
+punch; dance_b: dance_a, dance_spin).
 
 Run:   ``.venv/bin/python benchmarks/compare_trackers.py --suite walk --seeds 2 --minutes 30 --parallel 2 \
         --out runs/suite-walk``
@@ -47,6 +52,11 @@ SUITES = {
     "locomotion": ["walk", "jog", "run", "stealthy_walk", "zombie_walk"],
     "all20": ["all"],
 }
+SPLIT_TEST = ["walk", "jog", "sideflip", "kick", "dance_b"]
+SPLIT_TRAIN = ["backflip", "cartwheel", "crawl", "dance_a", "dance_spin", "getup_facedown", "getup_faceup", "jump",
+               "punch", "roll", "run", "spin", "spinkick", "stealthy_walk", "zombie_walk", "long"]  # fmt: skip
+SUITES["split"] = SPLIT_TRAIN
+JUDGED = {"split": SPLIT_TEST}  # suites judged on other clips than they train on (and on their own in report-train/)
 ONE_CORE = ["gym.threads=1", "train.torch_threads=1", "train.eval.threads=1"]
 COMMAND_FILE = "suite_command.json"  # the command a suite ran in a run directory (reuse only on the same command)
 
@@ -87,9 +97,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def suite_motions(args: argparse.Namespace) -> list[str]:
+    """The clips every run trains on."""
     if args.motions:
         return list(args.motions)
     return list(SUITES[args.suite or "walk"])
+
+
+def judged_motions(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
+    """The reports to write, (folder name, clips judged): ``report`` on the suite's test clips, and for a suite
+    judged on held-out clips also ``report-train`` on the clips it trained on."""
+    if args.suite in JUDGED:
+        return [("report", list(JUDGED[args.suite])), ("report-train", suite_motions(args))]
+    return [("report", suite_motions(args))]
 
 
 def jobs(args: argparse.Namespace, out: Path) -> list[Job]:
@@ -191,14 +210,10 @@ def main(argv: list[str] | None = None) -> int:
     todo = train_all(args, out)
     if args.train_only:
         return 0
-    report_args = [*(str(j.out) for j in todo), "--out", str(out / "report"), "--motions", *suite_motions(args)]
-    if args.starts is not None:
-        report_args += ["--starts", str(args.starts)]
-    if args.no_render:
-        report_args.append("--no-render")
-    if args.no_pushes:
-        report_args.append("--no-pushes")
-    compare_main(report_args)
+    options = [] if args.starts is None else ["--starts", str(args.starts)]
+    options += ["--no-render"] * args.no_render + ["--no-pushes"] * args.no_pushes
+    for folder, motions in judged_motions(args):
+        compare_main([*(str(j.out) for j in todo), "--out", str(out / folder), "--motions", *motions, *options])
     return 0
 
 

@@ -126,3 +126,18 @@ def test_a_failed_run_stops_new_starts_but_lets_running_ones_finish(
     assert (tmp_path / "b" / module.COMMAND_FILE).exists()  # the run going at the failure finished
     assert not (tmp_path / "c" / module.COMMAND_FILE).exists()  # and nothing new started
     assert not (tmp_path / "logs" / "supertrack-s1.log").exists()
+
+
+def test_the_generalisation_split_is_fixed_disjoint_and_covers_the_library() -> None:
+    m = _suite_module()
+    from common.motion.dataset import bundled_clip_names
+
+    # Fixed: these lists are the protocol; changing them makes earlier split results incomparable.
+    assert m.SPLIT_TEST == ["walk", "jog", "sideflip", "kick", "dance_b"]
+    assert m.SUITES["split"] == m.SPLIT_TRAIN and "long" in m.SPLIT_TRAIN and len(m.SPLIT_TRAIN) == 16
+    assert not set(m.SPLIT_TEST) & set(m.SPLIT_TRAIN)
+    assert sorted(m.SPLIT_TEST + [c for c in m.SPLIT_TRAIN if c != "long"]) == bundled_clip_names()
+    args = m.build_parser().parse_args(["--suite", "split", "--out", "x"])
+    assert m.judged_motions(args) == [("report", m.SPLIT_TEST), ("report-train", m.SPLIT_TRAIN)]
+    walk = m.build_parser().parse_args(["--suite", "walk", "--out", "x"])
+    assert m.judged_motions(walk) == [("report", ["walk"])]
