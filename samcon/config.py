@@ -177,7 +177,7 @@ class FeedbackConfig:
         anchor: ``mean``: b = mean(a) - M mean(s) (the lectures' regression through the samples' means); ``path``:
             b = a* - M s* through the chosen trajectory's offset a* and start features s*, so that on its own states
             the policy replays the open-loop trajectory. The elite of one search are mostly noise around many
-            different offsets, so their mean offset need not track at all (walk, measured: see the README).
+            different offsets, so their mean offset need not track at all (walk, measured: see docs/samcon.md).
             ``nearest``: the path anchor through every searched path (the one from the clip's start and the
             ``starts`` ones): at a segment's start the policy takes the path whose start features are nearest
             (each feature scaled by its spread over the regression samples) and applies ``a*_p + M (s - s*_p)``.

@@ -16,7 +16,7 @@ where the clip as recorded has them at most 1.8 cm below it. The bend closes the
 for (``seam_bridge``; off by default), the keyframes within that many seconds of the seam are then replaced by one
 cubic curve across it (:func:`_bridge_seam`), so that velocities run on too: zombie_walk's and dance_spin's seams
 ask for 1.8 and 1.3 body weights of force no floor contact gives, bridged none. It is off by default because it made
-SAMCON's search on zombie_walk and cartwheel worse on every draw measured (session 22, README).
+SAMCON's search on zombie_walk and cartwheel worse on every draw measured (docs/motions.md).
 """
 
 from __future__ import annotations

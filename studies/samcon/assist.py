@@ -31,7 +31,7 @@ an unassisted open-loop path. The optimiser moves the work from the couple to th
 The force is a function of the clip frame and the state, so an assisted path is still open loop and replays
 bit-exactly with the law (:func:`studies.samcon.forces.assisted_replay`); the polish rolls out with the law and its
 linearisation counts the law's dependence on the state. The residual fed forward alone (``scale`` 1, no feedback)
-made the search worse on run and jog (README, session 20): the reference's centre of mass falls faster than g at the
+made the search worse on run and jog (docs/samcon.md): the reference's centre of mass falls faster than g at the
 top of run's flights, and pushing the character down there did not make up for the push-off it could not give.
 
 The residual at frame k is measure 1's h-step difference (the mean acceleration under a triangle of half-width h
