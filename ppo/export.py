@@ -43,31 +43,19 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
     Raises:
         ValueError: If the checkpoint holds no PPO policy or does not fit the config.
     """
-    cfg, learner = load_run_checkpoint(PPOTrackerConfig, run_dir, checkpoint, "sizes", "normalizer", "net")
-    sizes, norm_state = learner["sizes"], learner["normalizer"]
-    if sizes["action"] != humanoid.nu:
-        raise ValueError(f"{checkpoint}: {sizes['action']} actions, the model has {humanoid.nu} actuators")
-    n = cfg.normalizer
-    # The mask is stored with the statistics, so the observation layout needs no gym to recompute it.
-    normalizer = RunningNormalizer(np.asarray(norm_state["mask"], dtype=bool), n.clip, n.epsilon, n.max_samples)
-    normalizer.load_state_dict(norm_state)
-    net = ActorCritic(sizes["obs"], sizes["action"], cfg.network)
-    try:
-        net.load_state_dict(learner["net"])
-    except RuntimeError as e:
-        raise ValueError(f"{checkpoint}: network weights do not match {run_dir}/config.yaml: {e}") from e
-    actor = net.actor.eval()
+    cfg, actor, normalizer = load_actor(run_dir, checkpoint, humanoid)
+    obs_size = normalizer.mean.shape[0]
     hinge_qpos = humanoid.hinge_qpos
     scale, clip = cfg.network.action_scale, cfg.network.action_clip
     observe = Observer(cfg.observation, humanoid, library)
 
     def act(result: StepResult) -> np.ndarray:
         obs = observe(result)
-        if obs.shape[-1] != sizes["obs"]:
+        if obs.shape[-1] != obs_size:
             # e.g. a run from before the parc observation: its config.yaml has no observation section
             raise ValueError(
                 f"{run_dir}/config.yaml: the '{cfg.observation.kind}' observation has {obs.shape[-1]} features, the "
-                f"policy in {checkpoint} reads {sizes['obs']} (a run with the previous observation needs "
+                f"policy in {checkpoint} reads {obs_size} (a run with the previous observation needs "
                 f"'observation: {{kind: local}}' in its config.yaml)"
             )
         norm_obs = normalizer.normalize(obs)
@@ -89,6 +77,7 @@ def load_actor(run_dir: Path, checkpoint: Path,
     if sizes["action"] != humanoid.nu:
         raise ValueError(f"{checkpoint}: {sizes['action']} actions, the model has {humanoid.nu} actuators")
     n = cfg.normalizer
+    # The mask is stored with the statistics, so the observation layout needs no gym to recompute it.
     normalizer = RunningNormalizer(np.asarray(norm_state["mask"], dtype=bool), n.clip, n.epsilon, n.max_samples)
     normalizer.load_state_dict(norm_state)
     net = ActorCritic(sizes["obs"], sizes["action"], cfg.network)

@@ -45,26 +45,7 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
             does not fit the config.
     """
     del library
-    cfg, learner = load_run_checkpoint(SuperTrackConfig, run_dir, checkpoint, "policy")
-    if average is None:
-        average = "policy_average" in learner
-    if average and "policy_average" not in learner:
-        raise ValueError(f"{checkpoint}: no averaged policy in this checkpoint (its run had policy.average_decay 0)")
-    weights = learner["policy_average"]["module"] if average else learner["policy"]
-    # Placeholder statistics of the right size; load_state_dict overwrites them with the trained ones.
-    size = int(weights["local_norm.mean"].shape[0])
-    norm = Normalizer(np.zeros(size), np.ones(size))
-    net = Policy(len(humanoid.joint_groups), cfg.policy.hidden, norm, cfg.policy.init_scale,
-                 root_offset=cfg.policy.root_offset,
-                 revolute=torch.tensor([g.kind == "revolute" for g in humanoid.joint_groups]))  # fmt: skip
-    if size != 16 * humanoid.num_bodies + 3:
-        # Local() is 16 values per body plus 3 (see supertrack.state.BodyState.local): another size, another model.
-        raise ValueError(f"{checkpoint}: policy input size {size} does not fit a {humanoid.num_bodies}-body model")
-    try:
-        net.load_state_dict(weights)
-    except RuntimeError as e:
-        raise ValueError(f"{checkpoint}: policy weights do not match {run_dir}/config.yaml: {e}") from e
-    net.eval()
+    cfg, net, _ = load_policy_network(run_dir, checkpoint, humanoid, average)
     return Actor(humanoid, net, cfg.policy.alpha).deterministic
 
 
