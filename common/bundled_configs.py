@@ -8,6 +8,7 @@ folder is the repository's ``configs/``, found relative to this package (an edit
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 CONFIG_ROOT = Path(__file__).resolve().parents[1] / "configs"
@@ -55,3 +56,12 @@ def config_help(command: str) -> str:
     names = ", ".join(n.removesuffix(".yaml") for n in bundled_configs(command)) or "none found"
     return (f"YAML config file, or the name of a bundled one ({names}; in {CONFIG_ROOT / command}); "
             "default: default")  # fmt: skip
+
+
+def plain_help(docstring: str) -> str:
+    """A module docstring as ``--help`` text: reStructuredText roles and literals (``x``, :mod:`x`, `x`) become plain
+    words and ``Example::`` becomes ``Example:``."""
+    text = re.sub(r":[a-z]+:`~?([^`]+)`", r"\1", docstring)
+    text = re.sub(r"``([^`]+)``", r"\1", text)
+    text = re.sub(r"`([^`]+)`", r"\1", text)
+    return text.replace("::\n", ":\n")

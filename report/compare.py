@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from common.bundled_configs import plain_help
 from common.character.humanoid import Humanoid
 from common.config import ConfigError
 from common.evaluation.evaluate import EvalConfig, EvalResult, Policy, evaluate
@@ -292,7 +293,7 @@ def _results_json(report: Report) -> dict[str, Any]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="compare-trackers", description=__doc__.split("\n\n")[0],
+    parser = argparse.ArgumentParser(prog="compare-trackers", description=plain_help(__doc__.split("\n\n")[0]),
                                      formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("runs", nargs="+", metavar="RUN_DIR", help="training run directories")
     parser.add_argument("--out", required=True, help="report directory")

@@ -33,6 +33,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from common.bundled_configs import plain_help
 from common.character.humanoid import Humanoid
 from common.config import atomic_output
 from report.runs import ReportError, export_module, load_run
@@ -123,7 +124,7 @@ def sidecar_path(onnx_path: Path) -> Path:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="export-policy", description=__doc__, epilog=EXAMPLES,
+    parser = argparse.ArgumentParser(prog="export-policy", description=plain_help(__doc__), epilog=EXAMPLES,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("run", metavar="RUN_DIR", help="a training run directory (SuperTrack or PPO)")
     parser.add_argument("--checkpoint", type=int, metavar="ITER", help="checkpoint iteration (default: the newest)")

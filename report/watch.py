@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from common.bundled_configs import plain_help
 from common.character.humanoid import Humanoid
 from common.config import ConfigError
 from common.motion.dataset import load_motions
@@ -67,7 +68,7 @@ def view(sim_qpos: np.ndarray, ref_qpos: np.ndarray, humanoid: Humanoid, fps: fl
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="watch-policy", description=__doc__,
+    parser = argparse.ArgumentParser(prog="watch-policy", description=plain_help(__doc__),
                                      formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("run", help="a training run directory")
     parser.add_argument("--motions", nargs="+", help="motions to track (default: the run's training motions)")

@@ -15,6 +15,7 @@ import argparse
 import sys
 import time
 
+from common.bundled_configs import plain_help
 from common.character.humanoid import BodyGeometry, Humanoid, PhysicsConfig
 from common.motion.dataset import load_motions, resolve_clips, save_dataset
 from common.motion.library import MotionLibrary
@@ -41,7 +42,7 @@ def summary(library: MotionLibrary, sources_fps: dict[str, float], humanoid: Hum
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="mimic-motions", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="mimic-motions", description=plain_help(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter
     )
     sub = parser.add_subparsers(dest="command", required=True)
     s = sub.add_parser("summary", help="print frames, duration, source fps, loop mode and foot heights per clip")

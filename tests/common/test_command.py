@@ -101,3 +101,13 @@ def test_ctrl_c_stops_after_the_iteration_with_an_evaluation_and_a_checkpoint(co
     latest = json.loads((out / "checkpoints" / "latest.json").read_text())
     records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
     assert "eval/mpjpe_g" in records[-1] and str(records[-1]["iteration"]) in json.dumps(latest)
+
+
+@pytest.mark.parametrize("command", ["train-supertrack", "train-ppo", "track-samcon", "compare-trackers",
+                                     "watch-policy", "export-policy", "mimic-motions"])  # fmt: skip
+def test_every_commands_help_is_plain_text(command: str) -> None:
+    proc = subprocess.run([*_command(command), "--help"], env=_outside_env(), capture_output=True, text=True,
+                          timeout=120)  # fmt: skip
+    assert proc.returncode == 0 and proc.stdout.startswith("usage: "), proc.stderr[-2000:]
+    for markup in ("``", ":mod:", ":func:", ":class:", ":meth:", "::\n"):
+        assert markup not in proc.stdout, f"{command} --help shows {markup!r}"
