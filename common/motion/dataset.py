@@ -7,7 +7,7 @@ a dataset built for another rate or character is refused rather than silently mi
 
 from __future__ import annotations
 
-import os
+import io
 import warnings
 from importlib import resources
 from pathlib import Path
@@ -17,6 +17,7 @@ import numpy as np
 
 from common.character.humanoid import Humanoid
 from common.character.state import FRAME_FIELDS, CharacterState
+from common.config import atomic_output
 from common.motion.library import ClipFrames, MotionLibrary
 from common.motion.motion import (
     CLIP_PACK_FORMAT,
@@ -96,32 +97,37 @@ def load_motions(specs: list[str], humanoid: Humanoid) -> MotionLibrary:
 
 
 def save_dataset(path: str | Path, library: MotionLibrary, humanoid: Humanoid) -> None:
-    """Writes a motion library to HDF5: to a temporary file first, renamed over ``path`` only when complete."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = DATASET_FORMAT
-            f.attrs["version"] = DATASET_VERSION
-            f.attrs["control_hz"] = humanoid.physics.control_hz
-            f.attrs["body_names"] = np.array(humanoid.body_names, dtype="S")
-            f.attrs["nq"] = humanoid.nq
-            group = f.create_group("clips")
-            for order, clip in enumerate(library.clips):
-                g = group.create_group(clip.name)
-                g.attrs.update(
-                    order=order,
-                    source=clip.source,
-                    loop=clip.loop,
-                    duration=clip.duration,
-                    cycle_yaw=clip.cycle_yaw,
-                )
-                g.create_dataset("cycle_shift", data=clip.cycle_shift)
-                for field in FRAME_FIELDS:
-                    g.create_dataset(field, data=getattr(clip.frames, field), compression="gzip", compression_opts=1)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    """Writes a motion library to HDF5: built in memory, then written to a temporary file renamed over ``path``.
+
+    HDF5 writing to a file on a full disk fails in its own way (errors while objects are freed, then a segfault);
+    in memory it cannot, and the one plain write that follows raises ``OSError`` (ENOSPC) with ``path`` as it was
+    and no temporary file left.
+
+    Raises:
+        OSError: If the file cannot be written; ``path`` keeps its previous content.
+    """
+    buffer = io.BytesIO()
+    with h5py.File(buffer, "w") as f:
+        f.attrs["format"] = DATASET_FORMAT
+        f.attrs["version"] = DATASET_VERSION
+        f.attrs["control_hz"] = humanoid.physics.control_hz
+        f.attrs["body_names"] = np.array(humanoid.body_names, dtype="S")
+        f.attrs["nq"] = humanoid.nq
+        group = f.create_group("clips")
+        for order, clip in enumerate(library.clips):
+            g = group.create_group(clip.name)
+            g.attrs.update(
+                order=order,
+                source=clip.source,
+                loop=clip.loop,
+                duration=clip.duration,
+                cycle_yaw=clip.cycle_yaw,
+            )
+            g.create_dataset("cycle_shift", data=clip.cycle_shift)
+            for field in FRAME_FIELDS:
+                g.create_dataset(field, data=getattr(clip.frames, field), compression="gzip", compression_opts=1)
+    with atomic_output(path) as tmp:
+        tmp.write_bytes(buffer.getbuffer())
 
 
 def _check_frames(frames: CharacterState, where: str, humanoid: Humanoid) -> None:
