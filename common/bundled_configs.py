@@ -12,6 +12,10 @@ import re
 from pathlib import Path
 
 CONFIG_ROOT = Path(__file__).resolve().parents[1] / "configs"
+# Trained policies that ship with the project (``pretrained/<name>/``: a run directory reduced to its policy), made
+# by ``python -m report.bundle_policy``; ``pretrained`` alone names the general tracker.
+PRETRAINED_ROOT = CONFIG_ROOT.parent / "pretrained"
+DEFAULT_PRETRAINED = "general"
 
 
 def bundled_configs(command: str) -> list[str]:
@@ -49,6 +53,15 @@ def resolve_config(value: str | Path, command: str) -> Path:
         if candidate.is_file():
             return candidate
     return path
+
+
+def resolve_run(value: str | Path) -> Path:
+    """The run directory ``value`` names: an existing path as given, else ``pretrained`` (the bundled general
+    tracker) or ``pretrained:NAME`` (another bundled policy); anything else unchanged, for the caller's message."""
+    text = str(value)
+    if Path(value).exists() or not (text == "pretrained" or text.startswith("pretrained:")):
+        return Path(value)
+    return PRETRAINED_ROOT / (text.partition(":")[2] or DEFAULT_PRETRAINED)
 
 
 def config_help(command: str) -> str:

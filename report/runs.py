@@ -15,6 +15,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+from common.bundled_configs import resolve_run
 from common.character.humanoid import PhysicsConfig
 from common.config import ConfigError, from_dict, parse_yaml
 from common.evaluation.evaluate import EvalConfig
@@ -114,14 +115,14 @@ def load_run(path: str | Path, iteration: int | None = None) -> Run:
     """Reads a run directory.
 
     Args:
-        path: The run directory.
+        path: The run directory, or ``pretrained`` / ``pretrained:NAME`` for a policy bundled with the project.
         iteration: Checkpoint iteration to evaluate; None: the newest.
 
     Raises:
         ReportError: If ``path`` is not a run directory, has no (such) checkpoint, or its files are unreadable; a
             checkpoint whose pickle asks for anything but tensors, arrays and plain values is refused unopened.
     """
-    path = Path(path)
+    path = resolve_run(path)
     if not path.is_dir():
         raise ReportError(f"{path}: not a directory")
     missing = [n for n in ("config.yaml", "run_info.json") if not (path / n).is_file()]

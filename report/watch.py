@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.bundled_configs import plain_help
+from common.bundled_configs import PRETRAINED_ROOT, plain_help
 from common.character.humanoid import Humanoid
 from common.config import ConfigError
 from common.motion.dataset import load_motions
@@ -70,7 +70,8 @@ def view(sim_qpos: np.ndarray, ref_qpos: np.ndarray, humanoid: Humanoid, fps: fl
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="watch-policy", description=plain_help(__doc__),
                                      formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("run", help="a training run directory")
+    parser.add_argument("run", help="a training run directory, or 'pretrained' for the general tracker that ships with "
+                                    "the project")
     parser.add_argument("--motions", nargs="+", help="motions to track (default: the run's training motions)")
     parser.add_argument("--clip", help="which clip of the motions (default: the first)")
     parser.add_argument("--checkpoint", type=int, help="checkpoint iteration (default: the newest)")
@@ -94,7 +95,9 @@ def main(argv: list[str] | None = None) -> int:
         print(note + "; close the viewer window to quit")
         view(sim, ref, humanoid, fps)
         return 0
-    out = Path(args.out or Path(args.run) / f"watch_{library.names[clip]}.mp4")
+    # Beside the run, except for a bundled policy (the project's own folder): then in the working directory.
+    folder = Path.cwd() if run.path.is_relative_to(PRETRAINED_ROOT) else run.path
+    out = Path(args.out or folder / f"watch_{library.names[clip]}.mp4")
     backend, why = render.find_backend()
     if backend is None:
         print(f"error: no display and {why}", file=sys.stderr)
