@@ -9,6 +9,10 @@ V of the state a truncated episode reached (``bootstrap_value``, 0 elsewhere) an
 every state reached (``next_value``, GAE's value after the rollout; 0 in the other rows). It reports each step's
 observation moments (:meth:`GymActor.block_report`); the learner adds them to its own normaliser in the same order,
 so that its statistics are the ones the actor used.
+
+With AMP on (``amp``), a frame also holds the discriminator's features (:class:`ppo.amp_data.AMPFeatures`, raw) of
+the state s_t the step starts from (``amp_obs``) and of the state it reached, before any reset (``amp_next``, from
+the step's ``final_sim``): the policy's transition [s_t, s_t+1] never crosses an episode's end.
 """
 
 from __future__ import annotations
@@ -22,7 +26,8 @@ from common.character.humanoid import Humanoid
 from common.motion.library import MotionLibrary
 from common.sim.gym import StepResult
 from common.sim.observation import ObservationConfig, Observer
-from ppo.config import NetworkConfig
+from ppo.amp_data import AMPFeatures
+from ppo.config import AMPConfig, NetworkConfig
 from ppo.networks import ActorCritic
 from ppo.normalizer import Moments, RunningNormalizer, moments
 
@@ -48,13 +53,17 @@ def observation_layout(observe: Observer, library: MotionLibrary) -> dict[str, s
     return out
 
 
-def frame_fields(obs_size: int, action_size: int) -> dict[str, tuple[tuple[int, ...], str]]:
-    """The fields :class:`GymActor` writes per frame (see the module docstring)."""
-    return {
+def frame_fields(obs_size: int, action_size: int, amp_size: int = 0) -> dict[str, tuple[tuple[int, ...], str]]:
+    """The fields :class:`GymActor` writes per frame (see the module docstring); ``amp_size``: the width of the AMP
+    features (0: AMP off, no AMP fields)."""
+    fields = {
         "obs": ((obs_size,), "float32"), "action": ((action_size,), "float32"), "log_prob": ((), "float32"),
         "value": ((), "float32"), "reward": ((), "float64"),
         "bootstrap_value": ((), "float32"), "next_value": ((), "float32"),
     }  # fmt: skip
+    if amp_size:
+        fields.update({"amp_obs": ((amp_size,), "float32"), "amp_next": ((amp_size,), "float32")})
+    return fields
 
 
 def actor_weights(net: ActorCritic, normalizer: RunningNormalizer) -> dict[str, torch.Tensor]:
@@ -78,16 +87,18 @@ class GymActor:
         library: The clips the gym's characters follow (the observation reads future reference frames).
         network: The network config (action scale and clip).
         device: Where the network acts.
+        amp: The AMP section when AMP is on (the frames then hold its features); None: off.
     """
 
     def __init__(self, humanoid: Humanoid, net: ActorCritic, normalizer: RunningNormalizer,
                  observation: ObservationConfig, library: MotionLibrary, network: NetworkConfig,
-                 device: str = "cpu") -> None:  # fmt: skip
+                 device: str = "cpu", amp: AMPConfig | None = None) -> None:  # fmt: skip
         self.device = torch.device(device)
         self.net = net.to(self.device)
         self.normalizer, self.network = normalizer, network
         self.observe = Observer(observation, humanoid, library)
         self.hinge_qpos = humanoid.hinge_qpos
+        self.amp_features = None if amp is None else AMPFeatures(humanoid, amp.end_effectors)
         self._moments: list[Moments] = []
 
     def load_weights(self, weights: Mapping[str, torch.Tensor]) -> None:
@@ -120,18 +131,25 @@ class GymActor:
         out = self.net.act(self._tensor(norm_obs), self._tensor(noise))
         action = out.action.cpu().numpy()
         targets = pd_targets(res.ref_next.qpos[:, self.hinge_qpos], action.astype(np.float64), self.network)
-        return targets, {"obs": norm_obs, "action": action, "log_prob": out.log_prob.cpu().numpy(),
-                         "value": out.value.cpu().numpy()}  # fmt: skip
+        fields = {"obs": norm_obs, "action": action, "log_prob": out.log_prob.cpu().numpy(),
+                  "value": out.value.cpu().numpy()}  # fmt: skip
+        if self.amp_features is not None:
+            fields["amp_obs"] = self.amp_features(res.sim)
+        return targets, fields
 
     def after_step(self, res: StepResult, last: bool) -> dict[str, np.ndarray]:
-        """The frame's reward, bootstrap value and, at the rollout's last step, the value after it."""
+        """The frame's reward, bootstrap value, at the rollout's last step the value after it, and with AMP the
+        features of the state the step reached."""
         n = len(res.reward)
         bootstrap = np.zeros(n, dtype=np.float32)
         cut = np.flatnonzero(res.truncated)
         if len(cut):
             bootstrap[cut] = self._values(self.normalizer.normalize(self.observe.final(res, cut)))
         next_value = self._values(self.normalizer.normalize(self.observe(res))) if last else np.zeros(n, np.float32)
-        return {"reward": res.reward, "bootstrap_value": bootstrap, "next_value": next_value}
+        fields = {"reward": res.reward, "bootstrap_value": bootstrap, "next_value": next_value}
+        if self.amp_features is not None:
+            fields["amp_next"] = self.amp_features(res.final_sim)
+        return fields
 
     def block_report(self) -> list[Moments]:
         """The observation moments of every step of the block, in order (what the normaliser copy added)."""

@@ -2,8 +2,8 @@
 
 Sections: ``train`` (run length, evaluation; shared with SuperTrack), ``gym`` (characters, termination, reward),
 ``observation`` (what the networks see), ``network`` (actor and critic), ``ppo`` (rollouts and the update),
-``normalizer`` (observation statistics), ``motion_weights`` (PARC's adaptive clip sampling) and ``collect`` (where the
-gym steps).
+``normalizer`` (observation statistics), ``motion_weights`` (PARC's adaptive clip sampling), ``collect`` (where the
+gym steps) and ``amp`` (an adversarial motion prior's reward, off by default).
 ``configs/ppo/*.yaml`` document every value with its unit.
 """
 
@@ -167,6 +167,87 @@ class CollectConfig:
 
 
 @dataclass(frozen=True)
+class AMPConfig:
+    """An adversarial motion prior (Peng et al. 2021): a discriminator D over state transitions [s, s'], trained to tell
+    expert (motion library) from policy transitions, whose score becomes a reward added to the task's before GAE:
+    r = r_task + weight * r_amp (:mod:`ppo.amp`; formulas and sources in docs/ppo.md, section AMP).
+
+    Attributes:
+        weight: lambda_amp of the AMP reward in the total; 0 turns AMP off (no discriminator is built, the rewards
+            are the task's). rsl_rl's guideline: 0.1-0.5.
+        hidden: Hidden layer widths of the discriminator MLP.
+        activation: Its hidden activation (rsl_rl's AMPNet: ELU).
+        output: ``tanh`` (score in [-1, 1], trained with the hinge loss max(0, 1 - tanh(x) label), labels +-1) or
+            ``sigmoid`` (score in [0, 1], binary cross-entropy on the logit x, labels 1 and 0).
+        label_smoothing: Expert labels 1 - ls, policy labels -1 + ls (tanh) or ls (sigmoid); in [0, 0.5).
+        reward: ``rsl_rl`` (the saturated cross-entropy r = max(-log(max(1 - score - label_smoothing,
+            reward_epsilon)) - reward_shift, reward_min)) or ``mimickit`` (r = -log(max(1 - sigmoid(x),
+            reward_epsilon)) * reward_scale; needs ``output: sigmoid``).
+        reward_shift: rsl_rl's shift of the reward (0.45).
+        reward_epsilon: Floor of the argument of the log (1e-4 in both forms).
+        reward_min: rsl_rl's clamp of the reward from below (-0.1).
+        reward_scale: MimicKit's disc_reward_scale (2).
+        lr: Adam learning rate of the discriminator.
+        lambda_gp: Weight of the gradient penalty E ||d x / d input||^2 on expert inputs (x the raw output).
+        logit_reg: Weight of MimicKit's logit regularisation, the squared output layer weights (0.01 there).
+        weight_decay: Weight of MimicKit's weight decay, the squared weights of every layer, added to the loss
+            (1e-4 there).
+        buffer_size: Policy transitions the replay buffer holds.
+        replay_samples: Transitions of each rollout the replay buffer takes once it is full (until then, all of
+            them; MimicKit's disc_replay_samples).
+        batch_size: Policy transitions per discriminator step: half from the latest rollout, half from the replay
+            buffer (MimicKit).
+        expert_batch: Expert transitions per discriminator step, drawn from the motion library at random clips and
+            grid times.
+        updates_per_iteration: Discriminator Adam steps per iteration (after PPO's update of the iteration).
+        end_effectors: Add the hands' and feet's positions in the root frame to the features.
+    """
+
+    weight: float = 0.0
+    hidden: tuple[int, ...] = (256, 256)
+    activation: Literal["relu", "elu", "tanh"] = "elu"
+    output: Literal["tanh", "sigmoid"] = "tanh"
+    label_smoothing: float = 0.0
+    reward: Literal["rsl_rl", "mimickit"] = "rsl_rl"
+    reward_shift: float = 0.45
+    reward_epsilon: float = 1e-4
+    reward_min: float = -0.1
+    reward_scale: float = 2.0
+    lr: float = 1e-4
+    lambda_gp: float = 1.0
+    logit_reg: float = 0.0
+    weight_decay: float = 0.0
+    buffer_size: int = 50_000
+    replay_samples: int = 1000
+    batch_size: int = 512
+    expert_batch: int = 512
+    updates_per_iteration: int = 20
+    end_effectors: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.weight >= 0.0:
+            raise ValueError(f"amp.weight must be >= 0 (0: off), got {self.weight}")
+        if not self.hidden or min(self.hidden) < 1:
+            raise ValueError("amp.hidden needs at least one layer of positive width")
+        if not 0.0 <= self.label_smoothing < 0.5:
+            raise ValueError(f"amp.label_smoothing must lie in [0, 0.5), got {self.label_smoothing}")
+        if self.reward == "mimickit" and self.output != "sigmoid":
+            raise ValueError("amp.reward: mimickit reads the logit of a sigmoid output; set amp.output: sigmoid")
+        if self.reward_epsilon <= 0 or self.lr <= 0:
+            raise ValueError("amp.reward_epsilon and amp.lr must be positive")
+        if min(self.lambda_gp, self.logit_reg, self.weight_decay) < 0:
+            raise ValueError("amp.lambda_gp, amp.logit_reg and amp.weight_decay must be >= 0")
+        if min(self.buffer_size, self.replay_samples, self.expert_batch, self.updates_per_iteration) < 1:
+            raise ValueError("amp.buffer_size, replay_samples, expert_batch and updates_per_iteration must be >= 1")
+        if self.batch_size < 2:
+            raise ValueError(f"amp.batch_size must be >= 2 (half rollout, half replay), got {self.batch_size}")
+
+    @property
+    def enabled(self) -> bool:
+        return self.weight > 0.0
+
+
+@dataclass(frozen=True)
 class PPOTrackerConfig:
     """Everything ``train-ppo`` reads from its YAML file."""
 
@@ -178,6 +259,7 @@ class PPOTrackerConfig:
     normalizer: NormalizerConfig = field(default_factory=NormalizerConfig)
     motion_weights: MotionWeightConfig = field(default_factory=MotionWeightConfig)
     collect: CollectConfig = field(default_factory=CollectConfig)
+    amp: AMPConfig = field(default_factory=AMPConfig)
 
     def __post_init__(self) -> None:
         if self.collect.processes > self.gym.num_envs:

@@ -11,6 +11,11 @@ finished episodes to the per-clip failure rates, whose weights go to the gym wit
 
 update(): GAE on ``buffer.latest(rollout_length)``, then ``epochs`` x ``minibatches`` Adam steps on the PPO loss, the
 normalised observations being exactly those the policy acted on (the ratio starts at 1).
+
+AMP (``amp.weight`` > 0, :mod:`ppo.amp`): the frames also hold the discriminator's features of each transition; the
+rollout goes to the AMP's normaliser and replay buffer with the rollout, GAE reads r_task + weight * r_amp (the AMP
+reward under the discriminator as it stands), and the discriminator takes its steps after PPO's. With weight 0 no
+discriminator is built and GAE reads the task reward.
 """
 
 from __future__ import annotations
@@ -32,6 +37,8 @@ from common.sim.motion_weights import MotionWeights
 from common.sim.observation import Observer
 from common.train.training import NanGuard, gym_config
 from ppo.actor import GymActor, actor_weights, frame_fields, observation_layout, pd_targets
+from ppo.amp import AMP
+from ppo.amp_data import AMPFeatures
 from ppo.config import PPOTrackerConfig
 from ppo.gae import gae
 from ppo.losses import ppo_loss
@@ -71,11 +78,19 @@ class PPOLearner:
              {"params": list(self.net.critic.parameters()), "lr": p.critic_lr}]
         )  # fmt: skip
         self.nan_guard = NanGuard({"net": self.net, "optimizer": self.optimizer})
+        self.amp: AMP | None = None
+        self.amp_size = 0
+        if config.amp.enabled:
+            features = AMPFeatures(humanoid, config.amp.end_effectors)
+            self.amp = AMP(config.amp, features, library, n.clip, n.epsilon, self.device, config.train.seed)
+            self.amp_size = features.size
         fields = {
             "obs": ((self.obs_size,), "float32"), "action": ((self.action_size,), "float32"),
             "log_prob": ((), "float32"), "value": ((), "float32"), "reward": ((), "float32"),
             "bootstrap_value": ((), "float32"),
         }  # fmt: skip
+        if self.amp is not None:
+            fields.update({"amp_obs": ((self.amp_size,), "float32"), "amp_next": ((self.amp_size,), "float32")})
         self.buffer = CyclicBuffer(p.rollout_length * self.num_envs, self.num_envs, fields)
         self.last_value = np.zeros(self.num_envs)
         self.episode_return = np.zeros(self.num_envs)
@@ -90,9 +105,11 @@ class PPOLearner:
         device = str(self.device) if c.collect.processes == 0 else "cpu"
         factory = functools.partial(GymActor, net=copy.deepcopy(self.net).cpu(),
                                     normalizer=copy.deepcopy(self.normalizer), observation=c.observation,
-                                    library=library, network=c.network, device=device)  # fmt: skip
+                                    library=library, network=c.network, device=device,
+                                    amp=c.amp if self.amp is not None else None)  # fmt: skip
         return CollectorSpec(gym=gym_config(c), library=library, humanoid=humanoid, actor_factory=factory,
-                             fields=frame_fields(self.obs_size, self.action_size), noise_seed=c.train.seed,
+                             fields=frame_fields(self.obs_size, self.action_size, self.amp_size),
+                             noise_seed=c.train.seed,
                              max_steps=c.ppo.rollout_length, clip_weights=self._clip_weights(),
                              torch_threads=c.train.torch_threads,
                              inputs={"noise": ((self.action_size,), "float64")})  # fmt: skip
@@ -118,34 +135,48 @@ class PPOLearner:
 
     def _store_rollout(self, block: Block) -> None:
         """The rollout into the buffer, its statistics into the normaliser, its ended episodes into the failure
-        rates, and its charts."""
+        rates, its transitions into the AMP's statistics and replay buffer, and its charts."""
         f = block.frames
         returns: list[float] = []
+        amp_fields = ("amp_obs", "amp_next") if self.amp is not None else ()
         for t in range(block.steps):
             self.normalizer.merge(combine_moments([report[t] for report in block.reports]))
             terminated, truncated = f["terminated"][t], f["truncated"][t]
             self.buffer.push(
                 obs=f["obs"][t], action=f["action"][t], log_prob=f["log_prob"][t], value=f["value"][t],
                 reward=f["reward"][t], bootstrap_value=f["bootstrap_value"][t], episode_id=f["episode_id"][t],
-                terminated=terminated, truncated=truncated,
+                terminated=terminated, truncated=truncated, **{k: f[k][t] for k in amp_fields},
             )  # fmt: skip
             self.episode_return += f["reward"][t]
             done = np.flatnonzero(terminated | truncated)
             returns += self.episode_return[done].tolist()
             self.episode_return[done] = 0.0
         self.motion_weights.record_block(f)
+        if self.amp is not None:
+            self.amp.add_rollout(f["amp_obs"].reshape(-1, self.amp_size), f["amp_next"].reshape(-1, self.amp_size))
         self.last_value = f["next_value"][-1].astype(np.float64)
         self.rollout_stats = chart_metrics(block.charts)
         if block.charts["episodes"]:
             self.rollout_stats["charts/episode_return"] = float(np.mean(returns))
 
     # ----------------------------------------------------------------------------------------------- learning
+    def rewards(self, data: dict[str, np.ndarray]) -> np.ndarray:
+        """The rewards GAE reads for a rollout ``data`` (T, N, ...): the task reward, plus weight x the AMP reward
+        of each transition with AMP on (its mean logged as ``amp/reward_mean``). Shape: (T, N), float64."""
+        task = data["reward"].astype(np.float64)
+        if self.amp is None:
+            return task
+        d = self.amp_size
+        amp = self.amp.reward(data["amp_obs"].reshape(-1, d), data["amp_next"].reshape(-1, d)).reshape(task.shape)
+        self.rollout_stats["amp/reward_mean"] = float(amp.mean())
+        return task + self.config.amp.weight * amp
+
     def _rollout_batch(self) -> dict[str, torch.Tensor]:
         """The latest rollout with advantages and returns, flattened to (T * N, ...) tensors."""
         p = self.config.ppo
         data = self.buffer.latest(p.rollout_length)
         advantages, returns = gae(
-            data["reward"].astype(np.float64), data["value"].astype(np.float64), self.last_value,
+            self.rewards(data), data["value"].astype(np.float64), self.last_value,
             data["terminated"], data["truncated"], data["bootstrap_value"].astype(np.float64), p.gamma, p.lam,
         )  # fmt: skip
         self.rollout_stats["charts/explained_variance"] = float(
@@ -201,6 +232,8 @@ class PPOLearner:
                 break
         self.updates += 1
         out = {f"losses/{k}": v / max(steps, 1) for k, v in sums.items()}
+        if self.amp is not None:
+            out.update(self.amp.update())
         out["losses/steps"] = float(steps)
         out["charts/action_std"] = float(torch.exp(self.net.log_std).mean())
         out.update(self.rollout_stats)
@@ -228,13 +261,14 @@ class PPOLearner:
 
     # ----------------------------------------------------------------------------------------------- state
     def state_dict(self) -> dict[str, Any]:
-        """Networks, optimiser, normaliser, failure rates, the collector (gyms) and per-character episode returns."""
+        """Networks, optimiser, normaliser, failure rates, the collector (gyms), per-character episode returns and,
+        with AMP on, the discriminator, its optimiser, normaliser, replay buffer and generator (``amp``)."""
         return {
             "sizes": {"obs": self.obs_size, "action": self.action_size, "num_envs": self.num_envs},
             "net": self.net.state_dict(), "optimizer": self.optimizer.state_dict(),
             "normalizer": self.normalizer.state_dict(), "motion_weights": self.motion_weights.state_dict(),
             "collector": self.collector.state_dict(), "episode_return": self.episode_return.copy(),
-            "updates": self.updates,
+            "updates": self.updates, "amp": None if self.amp is None else self.amp.state_dict(),
         }  # fmt: skip
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -242,16 +276,21 @@ class PPOLearner:
 
         Raises:
             ValueError: If the checkpoint was written for other observation/action sizes or character counts, or
-                with another number of collector processes.
+                with another number of collector processes, or with AMP on where it is off here (or off where on).
         """
         sizes = {"obs": self.obs_size, "action": self.action_size, "num_envs": self.num_envs}
         if state.get("sizes") != sizes:
             raise ValueError(f"checkpoint is for sizes {state.get('sizes')}, this learner has {sizes}")
+        if (state.get("amp") is None) != (self.amp is None):
+            raise ValueError(f"checkpoint has AMP {'off' if state.get('amp') is None else 'on'}, this config has it "
+                             f"{'off' if self.amp is None else 'on'}")  # fmt: skip
         try:
             self.net.load_state_dict(state["net"])
             self.optimizer.load_state_dict(state["optimizer"])
         except (RuntimeError, ValueError, KeyError) as e:
             raise ValueError(f"checkpoint networks do not match this config: {e}") from e
+        if self.amp is not None:
+            self.amp.load_state_dict(state["amp"])
         self.normalizer.load_state_dict(state["normalizer"])
         self.motion_weights.load_state_dict(state["motion_weights"])
         self.collector.load_state_dict(state["collector"])

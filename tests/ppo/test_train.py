@@ -206,3 +206,54 @@ def test_a_collector_process_gives_the_in_process_numbers_and_resumes_exactly(
 def test_a_bad_collector_count_fails_with_its_name(tmp_path: Path, value: str, message: str) -> None:
     with pytest.raises(SystemExit, match=message):
         _run(tmp_path / "x", "--set", f"collect.processes={value}")
+
+
+@pytest.fixture(scope="module")
+def amp_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """With AMP on: 6 iterations straight, 4 iterations resumed to 6, and 6 straight with one collector process."""
+    root = tmp_path_factory.mktemp("ppo-amp")
+    out = {"straight": root / "straight", "resumed": root / "resumed", "process": root / "process"}
+    on = ("--set", "amp.weight=0.5")
+    _run(out["straight"], "--max-iterations", "6", *on)
+    _run(out["resumed"], "--max-iterations", "4", *on)
+    _run(out["resumed"], "--resume", "--max-iterations", "6", *on)
+    _run(out["process"], "--max-iterations", "6", *on, "--set", "collect.processes=1")
+    return out
+
+
+def _amp_state(out: Path) -> dict:
+    return read_checkpoint(out)[1]["learner"]["amp"]
+
+
+def test_amp_resumes_exactly_and_a_collector_process_gives_the_same_numbers(
+    runs: dict[str, Path], amp_runs: dict[str, Path]
+) -> None:
+    """A debug run with amp.weight 0.5 stopped after 4 iterations and resumed ends bit for bit where the straight run
+    does: the policy, the discriminator, its optimiser, normaliser, replay buffer and generator; and the AMP's
+    features computed in a collector process give the in-process numbers."""
+    straight = _amp_state(amp_runs["straight"])
+    assert straight["replay"]["data"].shape == (100, 250)  # full: 64 + 64 + 16 per iteration
+    assert straight["normalizer"]["count"] == 6 * (64 + 2 * 32)
+    for name in ("resumed", "process"):
+        for key, value in _weights(amp_runs["straight"]).items():
+            torch.testing.assert_close(_weights(amp_runs[name])[key], value, rtol=0, atol=0, msg=f"{name}: {key}")
+        state = _amp_state(amp_runs[name])
+        for key, value in straight["disc"].items():
+            torch.testing.assert_close(state["disc"][key], value, rtol=0, atol=0, msg=f"{name}: disc.{key}")
+        assert state["optimizer"]["state"].keys() == straight["optimizer"]["state"].keys()
+        for k, moments in straight["optimizer"]["state"].items():
+            for m, value in moments.items():
+                torch.testing.assert_close(state["optimizer"]["state"][k][m], value, rtol=0, atol=0)
+        for key in ("count", "mean", "var"):
+            np.testing.assert_array_equal(state["normalizer"][key], straight["normalizer"][key])
+        np.testing.assert_array_equal(state["replay"]["data"], straight["replay"]["data"])
+        assert state["replay"]["head"] == straight["replay"]["head"] and state["rng"] == straight["rng"]
+        assert _records(amp_runs[name]) == _records(amp_runs["straight"])
+    logged = {k for r in _records(amp_runs["straight"]) for k in r}
+    for key in ("amp/expert_loss", "amp/policy_loss", "amp/grad_penalty", "amp/expert_accuracy", "amp/policy_accuracy",
+                "amp/reward_mean"):  # fmt: skip
+        assert key in logged, key
+    # AMP changed the policy's numbers (its reward entered GAE); with AMP off no amp/ key is logged.
+    actor = "actor.0.weight"
+    assert not torch.equal(_weights(amp_runs["straight"])[actor], _weights(runs["straight"])[actor])
+    assert not any(k.startswith("amp/") for r in _records(runs["straight"]) for k in r)
