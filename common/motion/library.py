@@ -44,6 +44,7 @@ from common.maths.rotations import (
     quat_to_rotvec,
     quat_yaw,
 )
+from common.motion.errors import MotionFormatError
 from common.motion.motion import Clip
 
 SEAM_BLEND = 0.5  # s: a wrap clip's end takes its first frame's clearance above the floor over this long
@@ -278,7 +279,8 @@ def resample_clip(clip: Clip, humanoid: Humanoid, seam_bridge: float = 0.0) -> C
         root_pos, root_rot, joint_rot = clip.root_pos, clip.root_rot, clip.joint_rot
         n = int(np.floor(clip.duration / dt + 1e-9)) + 1
         if n < 2:
-            raise ValueError(f"{clip.source}: clip of {clip.duration:.4f} s is shorter than one control step")
+            raise MotionFormatError(f"{clip.source}: clip of {clip.duration:.4f} s is shorter than one control step "
+                                    f"({dt:.4f} s)")  # fmt: skip
         k = np.arange(n)
     times = k * dt
     pos, rot, jrot = _sample_keyframes(clip, times, root_pos, root_rot, joint_rot)

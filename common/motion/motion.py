@@ -22,13 +22,24 @@ import numpy as np
 
 from common.character.humanoid import DEEPMIMIC_JOINTS
 from common.maths.rotations import quat_fix_hemisphere, quat_from_axis_angle, quat_mul
+from common.motion import hdf5
+from common.motion.errors import MotionFormatError
+from common.motion.limits import (
+    MAX_CLIP_DURATION,
+    MAX_CLIPS,
+    MAX_FRAME_DURATION,
+    MAX_HINGE_ANGLE,
+    MAX_KEYFRAMES,
+    MAX_NUMBER_DIGITS,
+    MAX_ROOT_DISTANCE,
+    MIN_FRAME_DURATION,
+    MIN_QUAT_NORM,
+    QUAT_NORM_RANGE,
+    check_regular_file,
+    show_value,
+)
 
 ROW_LENGTH = 44
-# Physical bounds of a clip's values: beyond them a file is corrupt or in other units (e.g. millimetres), and
-# carrying on would put the character where nothing can track it.
-MAX_ROOT_DISTANCE = 1000.0  # m from the origin
-MAX_FRAME_DURATION = 60.0  # s
-MAX_HINGE_ANGLE = 2.0 * math.pi  # rad: a knee or elbow turned more than once round
 LOOP_MODES = ("wrap", "none")
 CLIP_PACK_FORMAT = "mimictrack.clip_pack"
 CLIP_PACK_VERSION = 1
@@ -37,10 +48,6 @@ CLIP_PACK_VERSION = 1
 _Y_TO_Z = np.array([math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0])
 _Y_TO_Z_INV = _Y_TO_Z * np.array([1.0, -1.0, -1.0, -1.0])
 _DEEPMIMIC_HINGE_AXIS = np.array([0.0, 0.0, 1.0])
-
-
-class MotionFormatError(ValueError):
-    """A motion file that cannot be read; the message names the file, the frame and the problem."""
 
 
 @dataclass(frozen=True)
@@ -98,6 +105,11 @@ def y_up_to_z_up_quat(q: np.ndarray) -> np.ndarray:
 def frames_to_clip(frames: np.ndarray, loop: str, name: str, source: str) -> Clip:
     """Validates DeepMimic rows and converts them to a :class:`Clip`.
 
+    The bounds are those of :mod:`common.motion.limits`: frame durations in [MIN_FRAME_DURATION,
+    MAX_FRAME_DURATION] (the last row's duration is not used), at most MAX_CLIP_DURATION and MAX_KEYFRAMES, the root
+    within MAX_ROOT_DISTANCE of the origin, quaternion lengths in QUAT_NORM_RANGE, hinge angles within
+    MAX_HINGE_ANGLE.
+
     Args:
         frames: DeepMimic rows. Shape: (M, 44).
         loop: ``"wrap"`` or ``"none"``.
@@ -107,12 +119,16 @@ def frames_to_clip(frames: np.ndarray, loop: str, name: str, source: str) -> Cli
     Raises:
         MotionFormatError: naming ``source``, the frame and the problem.
     """
-    if loop not in LOOP_MODES:
-        raise MotionFormatError(f"{source}: 'Loop' must be one of {LOOP_MODES}, got {loop!r}")
+    if not isinstance(loop, str) or loop not in LOOP_MODES:
+        raise MotionFormatError(f"{source}: 'Loop' must be one of {LOOP_MODES}, got {show_value(loop)}")
     if frames.ndim != 2 or frames.shape[0] == 0:
         raise MotionFormatError(f"{source}: no frames")
+    if frames.shape[1] != ROW_LENGTH:
+        raise MotionFormatError(f"{source}: frames of {frames.shape[1]} values, a DeepMimic frame has {ROW_LENGTH}")
     if frames.shape[0] < 2:
         raise MotionFormatError(f"{source}: a clip needs at least 2 frames, got {frames.shape[0]}")
+    if frames.shape[0] > MAX_KEYFRAMES:
+        raise MotionFormatError(f"{source}: {frames.shape[0]:,} frames, more than {MAX_KEYFRAMES:,}")
     bad = np.argwhere(~np.isfinite(frames))
     if len(bad):
         f, c = bad[0]
@@ -122,10 +138,16 @@ def frames_to_clip(frames: np.ndarray, loop: str, name: str, source: str) -> Cli
     if len(nonpos):
         f = nonpos[0]
         raise MotionFormatError(f"{source}: frame {f}: frame duration must be positive, got {dur[f]}")
+    short = np.flatnonzero(dur < MIN_FRAME_DURATION)
+    if len(short):
+        raise MotionFormatError(f"{source}: frame {short[0]}: frame duration {dur[short[0]]:.6g} s is below "
+                                f"{MIN_FRAME_DURATION:g} s")  # fmt: skip
     _check_bound(dur, MAX_FRAME_DURATION, source, "frame duration {:.6g} s is above {:g} s")
+    times = np.concatenate([[0.0], np.cumsum(dur)])
+    if times[-1] > MAX_CLIP_DURATION:
+        raise MotionFormatError(f"{source}: the clip lasts {times[-1]:.6g} s, longer than {MAX_CLIP_DURATION:g} s")
     _check_bound(np.linalg.norm(frames[:, 1:4], axis=-1), MAX_ROOT_DISTANCE, source,
                  "root {:.6g} m from the origin, farther than {:g} m")  # fmt: skip
-    times = np.concatenate([[0.0], np.cumsum(dur)])
 
     root_pos = y_up_to_z_up_pos(frames[:, 1:4])
     root_rot = _unit_quats(frames[:, 4:8], source, "root")
@@ -156,23 +178,53 @@ def _check_bound(values: np.ndarray, bound: float, source: str, problem: str) ->
 
 
 def _unit_quats(q: np.ndarray, source: str, joint: str) -> np.ndarray:
-    norm = np.linalg.norm(q, axis=-1)
-    bad = np.flatnonzero(norm < 1e-6)
+    # The largest component first: the norm of (1e200, 0, 0, 0) overflows when squared, its scaled norm does not.
+    scale = np.abs(q).max(axis=-1)
+    norm = scale * np.linalg.norm(q / np.where(scale > 0, scale, 1.0)[:, None], axis=-1)
+    bad = np.flatnonzero(norm < MIN_QUAT_NORM)
     if len(bad):
         raise MotionFormatError(f"{source}: frame {bad[0]}: zero-length quaternion for joint '{joint}'")
+    lo, hi = QUAT_NORM_RANGE
+    bad = np.flatnonzero((norm < lo) | (norm > hi))
+    if len(bad):
+        raise MotionFormatError(f"{source}: frame {bad[0]}: quaternion of length {norm[bad[0]]:.6g} for joint "
+                                f"'{joint}' is not a rotation (lengths {lo:g} to {hi:g} are read as one)")  # fmt: skip
     return q / norm[:, None]
 
 
+class _TooManyDigits(ValueError):
+    """An integer in a JSON file longer than :data:`~common.motion.limits.MAX_NUMBER_DIGITS` digits."""
+
+
+def _json_int(text: str) -> int:
+    if len(text) > MAX_NUMBER_DIGITS + 1:  # + 1: a minus sign
+        raise _TooManyDigits(len(text.lstrip("-")))
+    return int(text)
+
+
 def read_deepmimic(path: str | Path) -> Clip:
-    """Reads one DeepMimic ``.txt`` clip (JSON with ``Loop`` and ``Frames``)."""
+    """Reads one DeepMimic ``.txt`` clip (JSON with ``Loop`` and ``Frames``).
+
+    Raises:
+        MotionFormatError: naming the file (and the frame) and the problem on one line: not a regular file or too
+            large (refused before opening), not UTF-8 JSON, nested too deep, an integer of too many digits, a value
+            that is not a number (a string, ``true``, ``null``), or a clip :func:`frames_to_clip` refuses.
+    """
     path = Path(path)
+    check_regular_file(path, MotionFormatError)
     try:
-        doc = json.loads(path.read_bytes().decode("utf-8"))
+        doc = json.loads(path.read_bytes().decode("utf-8"), parse_int=_json_int)
     except UnicodeDecodeError as e:
         raise MotionFormatError(f"{path}: not a text file (byte 0x{e.object[e.start]:02x} at offset {e.start} is not "
                                 "UTF-8); a DeepMimic clip is JSON text") from None  # fmt: skip
     except json.JSONDecodeError as e:
         raise MotionFormatError(f"{path}: not valid JSON ({e})") from None
+    except _TooManyDigits as e:
+        raise MotionFormatError(f"{path}: an integer of {e.args[0]:,} digits; no value of a clip needs more than "
+                                f"{MAX_NUMBER_DIGITS}") from None  # fmt: skip
+    except RecursionError:
+        raise MotionFormatError(f"{path}: JSON nested too deep to read; a DeepMimic clip is "
+                                '{"Loop": ..., "Frames": [[...], ...]}') from None  # fmt: skip
     except OSError as e:
         raise MotionFormatError(f"{path}: cannot read ({e.strerror})") from None
     if not isinstance(doc, dict) or "Frames" not in doc:
@@ -180,31 +232,44 @@ def read_deepmimic(path: str | Path) -> Clip:
     rows = doc["Frames"]
     if not isinstance(rows, list) or not rows:
         raise MotionFormatError(f"{path}: no frames")
+    if len(rows) > MAX_KEYFRAMES:
+        raise MotionFormatError(f"{path}: {len(rows):,} frames, more than {MAX_KEYFRAMES:,}")
     for i, row in enumerate(rows):
         if not isinstance(row, list) or len(row) != ROW_LENGTH:
-            n = len(row) if isinstance(row, list) else type(row).__name__
+            n = len(row) if isinstance(row, list) else show_value(row)
             raise MotionFormatError(f"{path}: frame {i}: expected {ROW_LENGTH} values, got {n}")
-    try:
-        frames = np.asarray(rows, dtype=np.float64)
-    except (TypeError, ValueError) as e:
-        raise MotionFormatError(f"{path}: frames must be numbers ({e})") from None
+    # Numbers must be numbers: numpy would read "0.03" and true as 0.03 and 1.0 without a word.
+    if not {type(v) for row in rows for v in row} <= {int, float}:
+        i, c, v = next((i, c, v) for i, row in enumerate(rows) for c, v in enumerate(row)
+                       if type(v) not in (int, float))  # fmt: skip
+        raise MotionFormatError(f"{path}: frame {i}: column {c} holds {show_value(v)}, not a number")
+    frames = np.asarray(rows, dtype=np.float64)
     return frames_to_clip(frames, doc.get("Loop", "none"), clip_name(path), str(path))
 
 
 def write_clip_pack(path: str | Path, sources: list[str | Path]) -> None:
-    """Stores DeepMimic clips compactly: their raw rows as float32 in one HDF5 file (atomic write)."""
+    """Stores DeepMimic clips compactly: their raw rows as float32 in one HDF5 file (atomic write).
+
+    Each clip is read (validated) and its rows checked again as float32, as :func:`read_clip_pack` will read them:
+    rounding can carry a value over a bound (a frame duration of 1e-4 s is 9.99999975e-05 s in float32).
+
+    Raises:
+        MotionFormatError: a source the reader refuses, as read or as stored; nothing is written.
+    """
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
+    if not sources:
+        raise MotionFormatError(f"{path}: a clip pack needs at least one clip")
     try:
         with h5py.File(tmp, "w") as f:
             f.attrs["format"] = CLIP_PACK_FORMAT
             f.attrs["version"] = CLIP_PACK_VERSION
             for src in sources:
-                read_deepmimic(src)  # validates before storing
+                clip = read_deepmimic(src)
                 doc = json.loads(Path(src).read_text(encoding="utf-8"))
-                d = f.create_dataset(
-                    clip_name(src), data=np.asarray(doc["Frames"], dtype=np.float32), compression="gzip"
-                )
+                rows = np.asarray(doc["Frames"], dtype=np.float32)
+                frames_to_clip(rows.astype(np.float64), doc.get("Loop", "none"), clip.name, f"{src} (as float32)")
+                d = f.create_dataset(clip.name, data=rows, compression="gzip")
                 d.attrs["loop"] = doc.get("Loop", "none")
         os.replace(tmp, path)
     finally:
@@ -212,19 +277,33 @@ def write_clip_pack(path: str | Path, sources: list[str | Path]) -> None:
 
 
 def read_clip_pack(path: str | Path) -> list[Clip]:
-    """Reads every clip of a pack written by :func:`write_clip_pack`."""
+    """Reads every clip of a pack written by :func:`write_clip_pack`.
+
+    Raises:
+        MotionFormatError: naming the file (and the clip) and the problem: not a regular file, not HDF5, another
+            format or version, no clips, a clip that is not a (frames, 44) array of numbers or has no 'loop' string,
+            or rows :func:`frames_to_clip` refuses.
+    """
     path = Path(path)
+    check_regular_file(path, MotionFormatError, max_bytes=None)
     try:
         with h5py.File(path, "r") as f:
-            if f.attrs.get("format") != CLIP_PACK_FORMAT:
-                raise MotionFormatError(f"{path}: not a clip pack (format {f.attrs.get('format')!r})")
-            if f.attrs.get("version") != CLIP_PACK_VERSION:
-                raise MotionFormatError(
-                    f"{path}: clip pack version {f.attrs.get('version')}, this code reads {CLIP_PACK_VERSION}"
-                )
-            return [
-                frames_to_clip(f[k][()].astype(np.float64), str(f[k].attrs["loop"]), k, f"{path}:{k}")
-                for k in sorted(f.keys())
-            ]
+            fmt = hdf5.attr(f, "format", "str", str(path)) if "format" in f.attrs else None
+            if fmt != CLIP_PACK_FORMAT:
+                raise MotionFormatError(f"{path}: not a clip pack (format {fmt!r})")
+            version = hdf5.attr(f, "version", "int", str(path))
+            if version != CLIP_PACK_VERSION:
+                raise MotionFormatError(f"{path}: clip pack version {version}, this code reads {CLIP_PACK_VERSION}")
+            keys = sorted(f.keys())
+            if not keys:
+                raise MotionFormatError(f"{path}: a clip pack with no clips")
+            if len(keys) > MAX_CLIPS:
+                raise MotionFormatError(f"{path}: {len(keys):,} clips, more than {MAX_CLIPS:,}")
+            clips = []
+            for k in keys:
+                where = f"{path}:{k}"
+                frames = hdf5.array(f, k, where, (None, ROW_LENGTH), MAX_KEYFRAMES)
+                clips.append(frames_to_clip(frames, hdf5.attr(f[k], "loop", "str", where), k, where))
+            return clips
     except OSError as e:
         raise MotionFormatError(f"{path}: not a readable HDF5 file ({e})") from None

@@ -376,11 +376,25 @@ def test_bundled_long_clips_load() -> None:
         (json.dumps({"Loop": "none", "Frames": [_row(dur=0.0), _row()]}), "frame 0: frame duration must be positive"),
         (json.dumps({"Loop": "once", "Frames": [_row(), _row()]}), "'Loop' must be one of"),
         (json.dumps({"Loop": "none", "Frames": [_row(), [*_row()[:1], 1e30, *_row()[2:]]]}),
-         "frame 1: root 1e+30 m from the origin, farther than 1000 m"),
-        (json.dumps({"Loop": "none", "Frames": [_row(), [0.0, 600.0, 800.1, 0.0, *_row()[4:]]]}),
-         "frame 1: root 1000.08 m from the origin, farther than 1000 m"),  # sqrt(600^2 + 800.1^2)
-        (json.dumps({"Loop": "none", "Frames": [_row(dur=61.0), _row()]}),
-         "frame 0: frame duration 61 s is above 60 s"),
+         "frame 1: root 1e+30 m from the origin, farther than 100 m"),
+        (json.dumps({"Loop": "none", "Frames": [_row(), [0.0, 60.0, 80.1, 0.0, *_row()[4:]]]}),
+         "frame 1: root 100.08 m from the origin, farther than 100 m"),  # sqrt(60^2 + 80.1^2)
+        (json.dumps({"Loop": "none", "Frames": [_row(dur=1.5), _row()]}),
+         "frame 0: frame duration 1.5 s is above 1 s"),
+        (json.dumps({"Loop": "none", "Frames": [_row(), _row(dur=5e-5), _row()]}),
+         "frame 1: frame duration 5e-05 s is below 0.0001 s"),
+        (json.dumps({"Loop": "none", "Frames": [_row(dur=1.0)] * 601 + [_row()]}),
+         "the clip lasts 601 s, longer than 600 s"),
+        (json.dumps({"Loop": "none", "Frames": [_row(), [*_row()[:4], 3.0, 4.0, 0.0, 12.0, *_row()[8:]]]}),
+         "frame 1: quaternion of length 13 for joint 'root' is not a rotation"),  # sqrt(9 + 16 + 144)
+        (json.dumps({"Loop": "none", "Frames": [_row(), [*_row()[:8], 1e200, 0, 0, 0, *_row()[12:]]]}),
+         "frame 1: quaternion of length 1e+200 for joint 'chest' is not a rotation"),
+        (json.dumps({"Loop": "none", "Frames": [_row(), [*_row()[:3], "0.85", *_row()[4:]]]}),
+         "frame 1: column 3 holds '0.85' (a string), not a number"),
+        (json.dumps({"Loop": "none", "Frames": [_row(), [*_row()[:9], True, *_row()[10:]]]}),
+         "frame 1: column 9 holds true, not a number"),
+        (json.dumps({"Loop": "none", "Frames": [_row()]}), "a clip needs at least 2 frames, got 1"),
+        ('{"Loop": "none", "Frames": [[' + "1" * 5000 + "]]}", "an integer of 5,000 digits"),
         (json.dumps({"Loop": "none", "Frames": [_row(), _row(knee=7.0)]}),
          "frame 1: 'right_knee' angle 7 rad is beyond 6.28319 rad"),
     ],
@@ -446,7 +460,7 @@ def test_dataset_truncated_or_other_version_fails_clearly(
 
 
 @pytest.mark.parametrize(("field", "frame", "value", "message"), [
-    ("qpos", 5, 1e30, r"clip 'walk': frame 5: root 1e\+30 m from the origin, farther than 1000 m"),
+    ("qpos", 5, 1e30, r"clip 'walk': frame 5: root 1e\+30 m from the origin, farther than 100 m"),
     ("body_linvel", 7, float("inf"), r"clip 'walk': frame 7: body_linvel holds a value that is not finite"),
 ])  # fmt: skip
 def test_dataset_with_values_out_of_bounds_fails_naming_clip_and_frame(

@@ -13,7 +13,8 @@ Conventions, as in the format's usual readers (Biovision's definition, Blender, 
 * Units and the up axis are whatever the file used; :mod:`common.motion.motion_import.retarget` converts them.
 
 Errors name the file, the line and the problem (:class:`BvhFormatError`, a
-:class:`~common.motion.motion.MotionFormatError`).
+:class:`~common.motion.errors.MotionFormatError`). The bounds of :mod:`common.motion.limits` apply: the frame time,
+the number of frames, the depth and size of the hierarchy, and every number's size.
 """
 
 from __future__ import annotations
@@ -26,7 +27,16 @@ from pathlib import Path
 import numpy as np
 
 from common.maths.rotations import quat_mul, quat_rotate, quat_to_matrix
-from common.motion.motion import MotionFormatError
+from common.motion.errors import MotionFormatError
+from common.motion.limits import (
+    MAX_BVH_DEPTH,
+    MAX_BVH_JOINTS,
+    MAX_BVH_VALUE,
+    MAX_FRAME_DURATION,
+    MAX_KEYFRAMES,
+    MIN_FRAME_DURATION,
+    check_regular_file,
+)
 
 ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
@@ -122,10 +132,20 @@ def _floats(lines: _Lines, line: int, tokens: list[str], count: int, what: str) 
     try:
         values = np.array([float(t) for t in tokens])
     except ValueError:
-        raise lines.error(f"{what}: not a number in {' '.join(tokens)!r}", line) from None
+        raise lines.error(f"{what}: not a number in {_short(' '.join(tokens))!r}", line) from None
     if not np.all(np.isfinite(values)):
-        raise lines.error(f"{what}: value {tokens[int(np.flatnonzero(~np.isfinite(values))[0])]} is not finite", line)
+        raise lines.error(f"{what}: value {_short(tokens[int(np.flatnonzero(~np.isfinite(values))[0])])} is not finite",
+                          line)  # fmt: skip
+    big = np.flatnonzero(np.abs(values) > MAX_BVH_VALUE)
+    if len(big):
+        raise lines.error(f"{what}: value {values[big[0]]:.6g} is beyond +-{MAX_BVH_VALUE:g} (file units or degrees)",
+                          line)  # fmt: skip
     return values
+
+
+def _short(text: str, limit: int = 40) -> str:
+    """``text`` cut to ``limit`` characters for a message (a 5,000-digit number stays one readable line)."""
+    return text if len(text) <= limit else f"{text[: limit - 3]}... ({len(text):,} characters)"
 
 
 def _block_start(lines: _Lines, what: str) -> np.ndarray:
@@ -139,8 +159,16 @@ def _block_start(lines: _Lines, what: str) -> np.ndarray:
     return _floats(lines, n, tok[1:], 3, "OFFSET")
 
 
-def _joint(lines: _Lines, joints: list[BvhJoint], name: str, parent: int, column: int) -> int:
-    """Parses one joint block (after its ``ROOT``/``JOINT`` line); returns the next free motion column."""
+def _joint(lines: _Lines, joints: list[BvhJoint], name: str, parent: int, column: int, depth: int = 1) -> int:
+    """Parses one joint block (after its ``ROOT``/``JOINT`` line); returns the next free motion column.
+
+    ``depth`` counts the joints from the root to this one; deeper than :data:`~common.motion.limits.MAX_BVH_DEPTH`
+    is refused before recursing further (3,000 nested joints ran Python out of stack).
+    """
+    if depth > MAX_BVH_DEPTH:
+        raise lines.error(f"joint '{name}' is {depth} joints deep; at most {MAX_BVH_DEPTH} are read")
+    if len(joints) >= MAX_BVH_JOINTS:
+        raise lines.error(f"more than {MAX_BVH_JOINTS} joints")
     offset = _block_start(lines, f"joint '{name}'")
     n, tok = lines.next("CHANNELS")
     if tok[0] != "CHANNELS" or len(tok) < 2:
@@ -167,7 +195,7 @@ def _joint(lines: _Lines, joints: list[BvhJoint], name: str, parent: int, column
         if tok == ["}"]:
             return column
         if tok[0] == "JOINT" and len(tok) == 2:
-            column = _joint(lines, joints, tok[1], index, column)
+            column = _joint(lines, joints, tok[1], index, column, depth + 1)
         elif tok[:2] == ["End", "Site"]:
             site = _end_site(lines, name)
             old = joints[index]
@@ -209,19 +237,26 @@ def parse_bvh(text: str, source: str | Path = "<bvh>") -> Bvh:
         raise lines.error(f"missing MOTION after the hierarchy (got {got!r}; one ROOT per file)", where)
     lines.pos += 1
     n, value = _header_value(lines, "Frames:")
+    if value.isdigit() and len(value) > len(str(MAX_KEYFRAMES)):
+        raise lines.error(f"frame count {_short(value)} is more than {MAX_KEYFRAMES:,}", n)
     try:
         frames = int(value)
     except ValueError:
-        raise lines.error(f"frame count {value!r} is not an integer", n) from None
+        raise lines.error(f"frame count {_short(value)!r} is not an integer", n) from None
     if frames < 1:
         raise lines.error(f"frame count must be >= 1, got {frames}", n)
+    if frames > MAX_KEYFRAMES:
+        raise lines.error(f"frame count {frames:,} is more than {MAX_KEYFRAMES:,}", n)
     n, value = _header_value(lines, "Frame Time:")
     try:
         frame_time = float(value)
     except ValueError:
-        raise lines.error(f"frame time {value!r} is not a number", n) from None
+        raise lines.error(f"frame time {_short(value)!r} is not a number", n) from None
     if not (math.isfinite(frame_time) and frame_time > 0):
-        raise lines.error(f"frame time must be positive, got {value}", n)
+        raise lines.error(f"frame time must be positive, got {_short(value)}", n)
+    if not MIN_FRAME_DURATION <= frame_time <= MAX_FRAME_DURATION:
+        raise lines.error(f"frame time {frame_time:g} s is outside {MIN_FRAME_DURATION:g} to {MAX_FRAME_DURATION:g} s",
+                          n)  # fmt: skip
     rows = lines.items[lines.pos :]
     if len(rows) != frames:
         raise lines.error(f"'Frames: {frames}' but {len(rows)} frame rows follow", rows[-1][0] if rows else n)
@@ -235,10 +270,12 @@ def read_bvh(path: str | Path) -> Bvh:
     """Reads a BVH file.
 
     Raises:
-        BvhFormatError: naming the file, the line and the problem (missing MOTION, a row of the wrong length, a value
-            that is not a finite number, a non-positive frame time, a malformed hierarchy, ...).
+        BvhFormatError: naming the file, the line and the problem (not a regular file or too large, missing MOTION, a
+            row of the wrong length, a value that is not a finite number or beyond the bounds, a frame time out of
+            bounds, a malformed or too deep hierarchy, ...).
     """
     path = Path(path)
+    check_regular_file(path, BvhFormatError)
     try:
         text = path.read_text(encoding="utf-8", errors="replace")
     except OSError as e:
@@ -341,10 +378,19 @@ def write_bvh(path: str | Path, joints: tuple[BvhJoint, ...], frame_time: float,
         joints: Hierarchy in file order (parents before children, each joint's channels at its ``column``).
         frame_time: Seconds per frame.
         motion: Channel values. Shape: (F, C).
+
+    Raises:
+        BvhFormatError: what :func:`read_bvh` would refuse in the file (a hierarchy too deep, a frame time or a value
+            out of bounds, ...): the text is parsed before it is written, and nothing is written.
     """
+    path = Path(path)
     children: dict[int, list[int]] = {}
+    depth = np.zeros(len(joints), dtype=np.int64)
     for j, joint in enumerate(joints):
         children.setdefault(joint.parent, []).append(j)
+        depth[j] = depth[joint.parent] + 1 if joint.parent >= 0 else 1
+    if len(joints) and depth.max() > MAX_BVH_DEPTH:  # the writer recurses as the reader does
+        raise BvhFormatError(f"{path}: a hierarchy {depth.max()} joints deep; at most {MAX_BVH_DEPTH} are read")
     out = ["HIERARCHY"]
 
     def block(j: int, depth: int) -> None:
@@ -363,10 +409,11 @@ def write_bvh(path: str | Path, joints: tuple[BvhJoint, ...], frame_time: float,
     block(children[-1][0], 0)
     out += ["MOTION", f"Frames: {len(motion)}", f"Frame Time: {frame_time:.9g}"]
     out += [" ".join(f"{v:.6f}" for v in row) for row in motion]
-    path = Path(path)
+    text = "\n".join(out) + "\n"
+    parse_bvh(text, path)  # what is written, the reader takes
     tmp = path.with_name(path.name + ".tmp")
     try:
-        tmp.write_text("\n".join(out) + "\n")
+        tmp.write_text(text)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)

@@ -14,7 +14,7 @@ import numpy as np
 
 from common.character.humanoid import DEEPMIMIC_JOINTS
 from common.maths.rotations import quat_conj, quat_from_axis_angle, quat_mul
-from common.motion.motion import ROW_LENGTH, Clip
+from common.motion.motion import ROW_LENGTH, Clip, frames_to_clip
 
 _R = quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), np.pi / 2)  # Y up -> Z up
 
@@ -48,12 +48,29 @@ def clip_to_rows(clip: Clip) -> np.ndarray:
     return rows
 
 
+def check_writable(clip: Clip) -> None:
+    """Raises what :func:`~common.motion.motion.read_deepmimic` would raise on the clip written as DeepMimic rows
+    (one frame, a frame time or a root beyond the bounds of :mod:`common.motion.limits`, ...), naming ``clip.source``.
+    """
+    _rows_read_back(clip)
+
+
+def _rows_read_back(clip: Clip) -> list[list[float]]:
+    """The rows as written (9 significant digits), checked by the reader's own :func:`frames_to_clip`."""
+    rows = [[float(f"{v:.9g}") for v in row] for row in clip_to_rows(clip)]
+    frames_to_clip(np.asarray(rows, dtype=np.float64).reshape(-1, ROW_LENGTH), "wrap" if clip.loop else "none",
+                   clip.name, clip.source)  # fmt: skip
+    return rows
+
+
 def write_deepmimic(path: str | Path, clip: Clip) -> None:
-    """Writes ``clip`` as DeepMimic JSON (``Loop``, ``Frames``), atomically: nothing is replaced until complete."""
+    """Writes ``clip`` as DeepMimic JSON (``Loop``, ``Frames``), atomically: nothing is replaced until complete.
+
+    Raises:
+        MotionFormatError: a clip the reader would refuse as written (see :func:`check_writable`); nothing is written.
+    """
     path = Path(path)
-    rows = clip_to_rows(clip)
-    doc = {"Loop": "wrap" if clip.loop else "none",
-           "Frames": [[float(f"{v:.9g}") for v in row] for row in rows]}  # fmt: skip
+    doc = {"Loop": "wrap" if clip.loop else "none", "Frames": _rows_read_back(clip)}
     tmp = path.with_name(path.name + ".tmp")
     try:
         tmp.write_text(json.dumps(doc, separators=(",", ":")).replace("],[", "],\n["))

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from common.config import parse_yaml
-from common.motion.motion import MotionFormatError
+from common.motion.errors import MotionFormatError
+from common.motion.limits import check_regular_file
 
 UP_AXES = ("y", "z")
 
@@ -98,9 +99,13 @@ def parse_joint_map(doc: object, source: str, bodies: tuple[str, ...]) -> JointM
             raise MotionFormatError(f"{where}: expected {{source: [...], along: [x, y, z], with_parent: bool}}")
         if not isinstance(tip.get("with_parent", False), bool):
             raise MotionFormatError(f"{where}.with_parent: expected true or false, got {tip['with_parent']!r}")
-        along = np.asarray(tip["along"], dtype=np.float64)
+        raw_along = tip["along"]
+        # Numbers must be numbers: numpy would take ["1", "0", "0"] and [true, 0, 0] for vectors.
+        numbers = isinstance(raw_along, list) and all(type(v) in (int, float) for v in raw_along)
+        along = np.asarray(raw_along, dtype=np.float64) if numbers else np.zeros(0)
         if along.shape != (3,) or not np.all(np.isfinite(along)) or np.linalg.norm(along) < 1e-9:
-            raise MotionFormatError(f"{where}.along: expected a non-zero vector [x, y, z], got {tip['along']!r}")
+            raise MotionFormatError(f"{where}.along: expected a non-zero vector of 3 numbers [x, y, z], got "
+                                    f"{repr(raw_along)[:60]}")  # fmt: skip
         tips[body] = Tip(_names(tip["source"], f"{where}.source"), along, bool(tip.get("with_parent", False)))
     return JointMap(source, up, mapped, tips)
 
@@ -116,6 +121,7 @@ def load_joint_map(spec: str | Path, bodies: tuple[str, ...]) -> JointMap:
         path = Path(str(resources.files("common.motion.motion_import") / "maps" / f"{spec}.yaml"))
         if not path.exists():
             raise MotionFormatError(f"{spec}: no such joint map preset (presets: {', '.join(preset_names())})")
+    check_regular_file(path, MotionFormatError)
     try:
         doc = parse_yaml(path.read_text(encoding="utf-8"))
     except OSError as e:

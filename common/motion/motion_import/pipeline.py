@@ -18,7 +18,7 @@ from common.motion.library import MotionLibrary
 from common.motion.motion import Clip, MotionFormatError
 from common.motion.motion_import import cleanup
 from common.motion.motion_import.bvh import read_bvh
-from common.motion.motion_import.deepmimic import write_deepmimic
+from common.motion.motion_import.deepmimic import check_writable, write_deepmimic
 from common.motion.motion_import.joint_map import load_joint_map
 from common.motion.motion_import.retarget import RetargetOptions, retarget
 
@@ -32,7 +32,8 @@ class ImportOptions:
         retarget: Units, up axis and root scaling (BVH only).
         trim: (start, end) in seconds of the source, or None.
         mirror: Left-right mirror.
-        fix_ground: Shift the clip so that the feet rest on the floor in stance.
+        fix_ground: Shift the clip so that the feet rest on the floor in stance, and lift it out where a stance foot is
+            still under the floor (:func:`~common.motion.motion_import.cleanup.fix_ground`).
         loop: ``"wrap"`` or ``"none"``; None keeps the source's (BVH: none).
         name: Clip name; None: the file stem.
     """
@@ -50,15 +51,21 @@ def import_clip(spec: str, humanoid: Humanoid, options: ImportOptions) -> tuple[
     """Reads, retargets and cleans one clip; returns it with lines describing what was done.
 
     Raises:
-        MotionFormatError: an unreadable or malformed input, or a joint map that does not fit it.
+        MotionFormatError: an unreadable or malformed input, a joint map that does not fit it, or a clip that the
+            loaders would refuse (one frame, a frame time or root position beyond :mod:`common.motion.limits`, shorter
+            than one control step): what is returned, :func:`write_clip` writes and every loader reads.
         ValueError: an option that does not fit the clip (e.g. a trim that leaves no frames).
     """
     notes = []
     if spec.lower().endswith(".bvh"):
         bvh = read_bvh(spec)
-        result = retarget(bvh, humanoid, load_joint_map(options.joint_map, humanoid.body_names), options.retarget,
-                          name=options.name)  # fmt: skip
+        joint_map = load_joint_map(options.joint_map, humanoid.body_names)
+        try:
+            result = retarget(bvh, humanoid, joint_map, options.retarget, name=options.name)
+        except MotionFormatError as e:  # some name the joint map or a bone only: name the take too
+            raise (e if bvh.source in str(e) else MotionFormatError(f"{bvh.source}: {e}")) from None
         clip = result.clip
+        check_writable(clip)  # a take of one frame, or 900 m away, is refused here rather than written
         notes += [f"read {spec}: {len(bvh.joints)} joints, {bvh.num_frames} frames at {1 / bvh.frame_time:.1f} fps",
                   result.report()]  # fmt: skip
     else:
@@ -74,10 +81,14 @@ def import_clip(spec: str, humanoid: Humanoid, options: ImportOptions) -> tuple[
         clip = cleanup.mirror(clip)
         notes.append("mirrored left-right")
     if options.fix_ground:
-        clip, shift = cleanup.fix_ground(clip, humanoid)
-        notes.append(f"ground fixed: moved {shift * 100:+.1f} cm")
+        clip, ground = cleanup.fix_ground(clip, humanoid)
+        notes.append(ground.report())
     if options.loop is not None:
         clip = cleanup.set_loop(clip, options.loop)
+    check_writable(clip)
+    if not clip.loop and clip.duration < humanoid.physics.control_dt:
+        raise MotionFormatError(f"{clip.source}: the clip lasts {clip.duration:.4g} s, shorter than one control step "
+                                f"({humanoid.physics.control_dt:.4g} s): no command could play it")  # fmt: skip
     return clip, notes
 
 
