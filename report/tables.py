@@ -50,16 +50,19 @@ def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 
 def _metric_rows(values: dict[str, list[float]]) -> list[list[str]]:
-    """One row per metric; the best value(s) of the row in bold (unmarked when all are equal or NaN)."""
+    """One row per metric; the best value(s) of the row in bold (unmarked when all are equal or NaN, and in a row of
+    the reference's own figure, which ranks no method)."""
     rows = []
     for key in M.METRIC_NAMES:
         info, row = M.METRICS[key], values[key]
-        best = row[M.best_index(key, row)] if np.isfinite(row).any() else np.nan
+        best = row[M.best_index(key, row)] if info.ranked and np.isfinite(row).any() else np.nan
         # Ties are all marked; a row where every method is equal marks none (there is nothing to pick).
         mark = [v == best for v in row] if not all(v == best for v in row) else [False] * len(row)
         unit = f" ({info.unit})" if info.unit else ""
         cells = [f"**{fmt(v)}**" if m else fmt(v) for v, m in zip(row, mark, strict=True)]
-        rows.append([f"{key}{unit}, {'higher' if info.higher_is_better else 'lower'} better", *cells])
+        rank = f"{'higher' if info.higher_is_better else 'lower'} better"
+        rank = rank if info.ranked else "the reference's, not ranked"
+        rows.append([f"{key}{unit}, {rank}", *cells])
     return rows
 
 
@@ -71,13 +74,17 @@ def metric_tables(labels: list[str], results: list[EvalResult]) -> str:
     if len(results[0].clips) > 1:
         glance = clip_summary_table(labels, results, ("survival", "mpjpe_g", "mpjpe_l"))
         parts += ["\n#### Per clip at a glance\n", glance]
+        parts += ["\n#### Motion quality per clip\n", clip_summary_table(labels, results, MOTION_QUALITY)]
     for c, clip in enumerate(results[0].clips):
         values = {k: [float(r.per_clip[k][c]) for r in results] for k in M.METRIC_NAMES}
         parts += [f"\n#### Clip `{clip}`\n", table(["metric", *labels], _metric_rows(values))]
     return "\n".join(parts)
 
 
-_SHORT_NAMES = {"survival": "survival", "mpjpe_g": "MPJPE-g (mm)", "mpjpe_l": "MPJPE-l (mm)"}
+MOTION_QUALITY = ("accel_err", "vel_err", "foot_slide", "foot_slide_ref", "target_jitter")
+_SHORT_NAMES = {"survival": "survival", "mpjpe_g": "MPJPE-g (mm)", "mpjpe_l": "MPJPE-l (mm)",
+                "accel_err": "accel (mm/frame^2)", "vel_err": "vel (mm/frame)", "foot_slide": "foot slide (mm/frame)",
+                "foot_slide_ref": "reference's (mm/frame)", "target_jitter": "target jitter (rad/frame^2)"}  # fmt: skip
 
 
 def clip_summary_table(labels: list[str], results: list[EvalResult], keys: Sequence[str]) -> str:
@@ -172,12 +179,12 @@ def spread_table(runs: list[Run], results: list[EvalResult], pushed: list[EvalRe
     return table(["metric", *groups], rows)
 
 
-PER_CLIP_SPREAD = ("mpjpe_g", "mpjpe_l", "survival", "success")
+PER_CLIP_SPREAD = ("mpjpe_g", "mpjpe_l", "survival", "success", "accel_err", "foot_slide")
 
 
 def per_clip_spread_table(runs: list[Run], results: list[EvalResult]) -> str | None:
-    """Per clip, each learner's mean ± std over its seeds of MPJPE-g / -l, survival and success; None when every
-    learner has one run."""
+    """Per clip, each learner's mean ± std over its seeds of MPJPE-g / -l, survival, success, acceleration error and
+    foot sliding; None when every learner has one run."""
     groups = method_groups(runs)
     if all(len(g) < 2 for g in groups.values()):
         return None

@@ -22,6 +22,16 @@ failure and only the frames before it are scored (a method can look better there
 (:class:`common.sim.pushes.PushConfig`: by default 30 N s, horizontal, in a seeded random direction, at frame 60 and
 every 2 s after), applied between two control steps so that the policy sees it.
 
+**Motion quality** (:mod:`common.evaluation.metrics`): ``vel_err`` and ``accel_err`` (UHC/PHC: the first and second
+differences of every body's position against the reference's, mm/frame and mm/frame^2), ``foot_slide`` and
+``foot_slide_ref`` (the horizontal speed of a foot while its lowest point is below 2 cm, in mm/frame, of
+the character and of the reference: the clip's own sliding), ``target_jitter`` (the second difference of the PD targets
+the policy returned, rad/frame^2). Differences run over consecutive scored frames of one episode only (the start state
+before the first step is not one), so they follow MPJPE's rule: under the full horizon a failed episode's frames count;
+a blown-up character, scored frozen, moves no more and its targets are held at the last ones before the blow-up.
+Velocity, acceleration and jitter average their differences like the other per-frame figures; the foot sliding averages
+over the (foot, step) pairs in contact, and over the clips with any.
+
 A policy is any callable from the gym's :class:`~common.sim.gym.StepResult` to PD targets (N, nu); learners pass their
 deterministic (mean, no noise) policy.
 """
@@ -33,7 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from common.character.humanoid import Humanoid
+from common.character.humanoid import BodyGeometry, Humanoid
 from common.character.state import CharacterState
 from common.evaluation import metrics as M
 from common.motion.library import MotionLibrary
@@ -44,6 +54,9 @@ from common.sim.rewards import TerminationConfig
 Policy = Callable[[StepResult], np.ndarray]
 FRAME_METRICS = ("mpjpe_g", "mpjpe_l", "root_pos_err", "root_rot_err", "body_rot_err", "joint_vel_err",
                  "root_vel_err", "root_ang_vel_err")  # fmt: skip
+DIFF_METRICS = {"vel_err": 1, "accel_err": 2, "target_jitter": 2}  # key: order of the finite difference
+SLIDE_METRICS = ("foot_slide", "foot_slide_ref")
+CLIPS_WITH_ANY = ("mpjpe_g_succ", "mpjpe_l_succ", *SLIDE_METRICS)  # overall: mean over the clips that have a value
 
 
 @dataclass(frozen=True)
@@ -138,6 +151,7 @@ def evaluate(
         result = gym.reset(clips=clips, times=times)
         n, horizon = len(clips), int(episode_max.max())
         per_frame = {key: np.zeros((horizon, n)) for key in FRAME_METRICS}
+        motion = _MotionTrace(humanoid, horizon, n)
         body_err = np.zeros((horizon, n))
         valid = np.zeros((horizon, n), dtype=bool)
         alive = np.ones(n, dtype=bool)  # no failure yet
@@ -150,11 +164,13 @@ def evaluate(
                 hit = np.flatnonzero((t < episode_max) & ~frozen)
                 gym.push(hit, impulses[int(np.searchsorted(push_frames, t)), hit])
             before = result.sim
-            result = gym.step(policy(result), autoreset=False)
+            targets = policy(result)
+            result = gym.step(targets, autoreset=False)
             newly = result.diverged & ~frozen
             held = _with_rows(held, newly, before)
             frozen |= newly
             sim, ref = _with_rows(result.final_sim, frozen, held), result.final_ref
+            motion.add(t, sim, ref, targets, frozen)
             in_horizon = t < episode_max
             valid[t] = in_horizon & (alive | config.full_horizon)
             length += alive & in_horizon
@@ -169,18 +185,24 @@ def evaluate(
     terminated = ~alive
     succeeded = M.success(body_err.T, valid=valid.T, terminated=terminated)
     per_clip: dict[str, np.ndarray] = {key: np.zeros(nclip) for key in M.METRIC_NAMES}
+    diff_valid = motion.diff_valid(valid)
     for c in range(nclip):
         eps = clips == c
         means = M.summarise({key: v[:played, eps] for key, v in per_frame.items()}, valid[:, eps])
         for key, value in means.items():
             per_clip[key][c] = value
+        for key, order in DIFF_METRICS.items():
+            per_clip[key][c] = M.summarise({key: motion.per_frame[key][:played, eps]}, diff_valid[order][:, eps])[key]
+        for key in SLIDE_METRICS:
+            per_clip[key][c] = M.contact_mean(motion.slide[key][:played, eps], motion.contacts[key][:played, eps],
+                                              diff_valid[1][:, eps])  # fmt: skip
         ok = eps & succeeded
         only = M.summarise({key: per_frame[key][:played, ok] for key in ("mpjpe_g", "mpjpe_l")}, valid[:, ok])
         per_clip["mpjpe_g_succ"][c], per_clip["mpjpe_l_succ"][c] = only["mpjpe_g"], only["mpjpe_l"]
         per_clip["success"][c] = succeeded[eps].mean()
         per_clip["survival"][c] = (~terminated[eps]).mean()
         per_clip["episode_len_ratio"][c] = np.mean(length[eps] / episode_max[eps])
-    overall = {key: _mean_over_clips(v) if key.endswith("_succ") else float(np.mean(v)) for key, v in per_clip.items()}
+    overall = {key: _mean_over_clips(v) if key in CLIPS_WITH_ANY else float(np.mean(v)) for key, v in per_clip.items()}
     return EvalResult(
         clips=list(library.names), per_clip=per_clip, overall=overall,
         episode_length=length.reshape(nclip, k), episode_max=episode_max.reshape(nclip, k), frames=played,
@@ -227,8 +249,59 @@ def _score(per_frame: dict[str, np.ndarray], body_err: np.ndarray, t: int, sim: 
     body_err[t] = M.mean_body_pos_error_m(sim.body_pos, ref.body_pos)
 
 
+class _MotionTrace:
+    """The finite-difference measures of motion quality, fed one scored frame at a time.
+
+    Keeps the last three scored frames of every episode (each character plays one episode: the evaluator never resets)
+    and writes the difference ending at frame t into row t; :meth:`diff_valid` says which rows are real differences.
+
+    Args:
+        humanoid: The model (feet and their collision geoms).
+        horizon: Frames per episode at most.
+        n: Episodes.
+    """
+
+    def __init__(self, humanoid: Humanoid, horizon: int, n: int) -> None:
+        self.geometry, self.feet = BodyGeometry(humanoid), humanoid.foot_indices
+        self.per_frame = {key: np.zeros((horizon, n)) for key in DIFF_METRICS}
+        self.slide = {key: np.zeros((horizon, n)) for key in SLIDE_METRICS}  # summed over the feet in contact
+        self.contacts = {key: np.zeros((horizon, n)) for key in SLIDE_METRICS}  # feet in contact
+        self.window: list[tuple[np.ndarray, ...]] = []
+        self.held_targets = np.zeros(0)
+
+    def add(self, t: int, sim: CharacterState, ref: CharacterState, targets: np.ndarray, frozen: np.ndarray) -> None:
+        """Frame ``t``'s scored states and the targets that led to it (held where ``frozen``). Shapes: (N, ...)."""
+        targets = np.array(targets, dtype=np.float64)
+        if t == 0:
+            self.held_targets = targets.copy()
+        targets = np.where(frozen[:, None], self.held_targets, targets)
+        self.held_targets = targets
+        sim_h = self.geometry.lowest_points(sim.body_pos, sim.body_rot)[:, self.feet]
+        ref_h = self.geometry.lowest_points(ref.body_pos, ref.body_rot)[:, self.feet]
+        self.window = [*self.window[-2:], (sim.body_pos.copy(), ref.body_pos.copy(), targets, sim_h, ref_h)]
+        if len(self.window) < 2:
+            return
+        sim_pos, ref_pos, target, sim_height, ref_height = (np.stack(x, axis=1) for x in zip(*self.window, strict=True))
+        self.per_frame["vel_err"][t] = M.velocity_error_mm(sim_pos[:, -2:], ref_pos[:, -2:])[:, -1]
+        for key, pos, height in (("foot_slide", sim_pos, sim_height), ("foot_slide_ref", ref_pos, ref_height)):
+            slide, contact = M.foot_slide_mm(pos[:, -2:, self.feet], height[:, -2:])
+            self.slide[key][t] = np.sum(slide[:, -1], axis=-1, where=contact[:, -1])
+            self.contacts[key][t] = contact[:, -1].sum(axis=-1)
+        if len(self.window) == 3:
+            self.per_frame["accel_err"][t] = M.acceleration_error_mm(sim_pos, ref_pos)[:, -1]
+            self.per_frame["target_jitter"][t] = M.target_jitter(target)[:, -1]
+
+    @staticmethod
+    def diff_valid(valid: np.ndarray) -> dict[int, np.ndarray]:
+        """{order: rows whose difference of that order spans only valid frames}. Shapes: (T, N)."""
+        first, second = np.zeros_like(valid), np.zeros_like(valid)
+        first[1:] = valid[1:] & valid[:-1]
+        second[2:] = first[2:] & valid[:-2]
+        return {1: first, 2: second}
+
+
 def _mean_over_clips(values: np.ndarray) -> float:
-    """Mean of a success-only figure over the clips that have a successful episode (NaN if none has)."""
+    """Mean of a figure over the clips that have one (success-only, foot sliding; NaN if none has)."""
     finite = values[~np.isnan(values)]
     return float(finite.mean()) if len(finite) else float("nan")
 

@@ -10,6 +10,13 @@ arrays must broadcast against each other. Quaternions are (w, x, y, z); position
 The success criterion follows the UHC/PHC protocol: an episode succeeds when the per-frame mean body
 position error never exceeds 0.5 m over the whole clip. The evaluator must also count an episode that the
 environment terminated early as failed; it passes that in through ``success(..., terminated=...)``.
+
+**Motion quality.** :func:`velocity_error_mm`, :func:`acceleration_error_mm`, :func:`foot_slide_mm` and
+:func:`target_jitter` take a time axis (consecutive frames of one episode, at the control rate) and return one value
+per first or second finite difference along it (T - 1 or T - 2 values), again never averaging over time. Differences
+are per frame, not per second: a velocity in mm/frame, an acceleration in mm/frame^2, as UHC and PHC report them (at
+the control rate here, 60 Hz; at 30 fps the same smooth motion gives twice the velocity and four times the
+acceleration figure). World frame, Z up.
 """
 
 from __future__ import annotations
@@ -24,13 +31,17 @@ from common.maths.rotations import quat_geodesic_angle
 
 __all__ = [
     "DEFAULT_MAX_FRAMES",
+    "FOOT_CONTACT_HEIGHT_M",
     "METRICS",
     "METRIC_NAMES",
     "SUCCESS_THRESHOLD_M",
     "MetricInfo",
+    "acceleration_error_mm",
     "best_index",
     "body_rot_error_rad",
+    "contact_mean",
     "episode_length_ratio",
+    "foot_slide_mm",
     "joint_vel_error",
     "mean_body_pos_error_m",
     "mpjpe_global_mm",
@@ -41,6 +52,8 @@ __all__ = [
     "root_rot_error_rad",
     "success",
     "summarise",
+    "target_jitter",
+    "velocity_error_mm",
 ]
 
 SUCCESS_THRESHOLD_M = 0.5
@@ -48,6 +61,11 @@ SUCCESS_THRESHOLD_M = 0.5
 
 DEFAULT_MAX_FRAMES = 512
 """Episode length (frames) that :func:`episode_length_ratio` divides by unless told otherwise."""
+
+FOOT_CONTACT_HEIGHT_M = 0.02
+"""A foot touches the floor while the lowest point of its collision geom is below this height (metres), for the
+simulated character and the reference alike. The reference's planted feet float up to about 2.5 cm (walk's push-off)
+and sink up to 6 cm into the floor; a simulated planted foot sits within a few millimetres of it."""
 
 
 @dataclass(frozen=True)
@@ -59,16 +77,20 @@ class MetricInfo:
         unit: Unit of the value (empty for dimensionless ratios).
         higher_is_better: True when a larger value is a better tracker.
         description: One-line meaning of the metric.
+        ranked: False for a figure of the reference itself (the same for every tracker), which ranks no tracker.
     """
 
     key: str
     unit: str
     higher_is_better: bool
     description: str
+    ranked: bool = True
 
     @property
     def direction(self) -> str:
-        """Human-readable ranking rule: ``"higher is better"`` or ``"lower is better"``."""
+        """Human-readable ranking rule: ``"higher is better"``, ``"lower is better"`` or ``"not ranked"``."""
+        if not self.ranked:
+            return "not ranked"
         return "higher is better" if self.higher_is_better else "lower is better"
 
 
@@ -81,6 +103,11 @@ _METRIC_LIST: tuple[MetricInfo, ...] = (
     MetricInfo("joint_vel_err", "rad/s", False, "mean absolute joint (dof) velocity difference"),
     MetricInfo("root_vel_err", "m/s", False, "root linear velocity difference norm"),
     MetricInfo("root_ang_vel_err", "rad/s", False, "root angular velocity difference norm"),
+    MetricInfo("accel_err", "mm/frame^2", False, "mean body acceleration error (UHC/PHC), second differences"),
+    MetricInfo("vel_err", "mm/frame", False, "mean body velocity error (UHC/PHC), first differences"),
+    MetricInfo("foot_slide", "mm/frame", False, "mean horizontal foot speed while the foot touches the floor"),
+    MetricInfo("foot_slide_ref", "mm/frame", False, "the same for the reference: the clip's own sliding", False),
+    MetricInfo("target_jitter", "rad/frame^2", False, "mean absolute second difference of the policy's PD targets"),
     MetricInfo("mpjpe_g_succ", "mm", False, "MPJPE-g over the episodes that succeed (PHC/UHC; read with success)"),
     MetricInfo("mpjpe_l_succ", "mm", False, "MPJPE-l over the episodes that succeed (PHC/UHC; read with success)"),
     MetricInfo("success", "fraction", True, "episodes whose mean body error never exceeds 0.5 m"),
@@ -109,9 +136,11 @@ def best_index(key: str, values: ArrayLike) -> int:
 
     Raises:
         KeyError: If ``key`` is not a registered metric.
-        ValueError: If ``values`` is empty or all NaN.
+        ValueError: If ``values`` is empty or all NaN, or the metric is not ranked (a figure of the reference).
     """
     info = METRICS[key]
+    if not info.ranked:
+        raise ValueError(f"metric {key!r} describes the reference and ranks no tracker")
     v = np.asarray(values, dtype=np.float64).reshape(-1)
     if v.size == 0 or np.all(np.isnan(v)):
         raise ValueError(f"no finite value to rank for metric {key!r}")
@@ -283,6 +312,108 @@ def root_ang_vel_error(sim: ArrayLike, ref: ArrayLike) -> NDArray[np.float64]:
     """
     s, r = _as_vectors(sim, ref, 3, "root_ang_vel_error")
     return np.linalg.norm(s - r, axis=-1)
+
+
+def _time_diff(x: NDArray, order: int, time_axis: int, name: str) -> NDArray:
+    """The ``order``-th finite difference along ``time_axis`` (negative), checking there are enough frames."""
+    if x.ndim < -time_axis or x.shape[time_axis] <= order:
+        raise ValueError(f"{name}: need more than {order} frames along axis {time_axis}, got shape {x.shape}")
+    return np.diff(x, n=order, axis=time_axis)
+
+
+def velocity_error_mm(sim_body_pos: ArrayLike, ref_body_pos: ArrayLike) -> NDArray[np.float64]:
+    """Velocity error (UHC/PHC): mean over bodies of ``|v_sim - v_ref|``, with ``v[t] = p[t] - p[t - 1]``.
+
+    Args:
+        sim_body_pos: Simulated body positions in metres over consecutive frames of one episode, shape (..., T, B, 3).
+        ref_body_pos: Reference body positions in metres, shape (..., T, B, 3).
+
+    Returns:
+        Velocity error in mm/frame, one value per frame pair (t - 1, t), shape (..., T - 1).
+    """
+    s, r = _as_body_arrays(sim_body_pos, ref_body_pos, 3, "velocity_error_mm")
+    dv = _time_diff(s, 1, -3, "velocity_error_mm") - _time_diff(r, 1, -3, "velocity_error_mm")
+    return 1000.0 * np.linalg.norm(dv, axis=-1).mean(axis=-1)
+
+
+def acceleration_error_mm(sim_body_pos: ArrayLike, ref_body_pos: ArrayLike) -> NDArray[np.float64]:
+    """Acceleration error (UHC/PHC): mean over bodies of ``|a_sim - a_ref|``, with
+    ``a[t] = p[t] - 2 p[t - 1] + p[t - 2]``.
+
+    Args:
+        sim_body_pos: Simulated body positions in metres over consecutive frames of one episode, shape (..., T, B, 3).
+        ref_body_pos: Reference body positions in metres, shape (..., T, B, 3).
+
+    Returns:
+        Acceleration error in mm/frame^2, one value per frame triple (t - 2, t - 1, t), shape (..., T - 2).
+    """
+    s, r = _as_body_arrays(sim_body_pos, ref_body_pos, 3, "acceleration_error_mm")
+    da = _time_diff(s, 2, -3, "acceleration_error_mm") - _time_diff(r, 2, -3, "acceleration_error_mm")
+    return 1000.0 * np.linalg.norm(da, axis=-1).mean(axis=-1)
+
+
+def foot_slide_mm(
+    foot_pos: ArrayLike, foot_height: ArrayLike, threshold_m: float = FOOT_CONTACT_HEIGHT_M
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Horizontal displacement of each foot from one frame to the next, and whether it touched the floor at both.
+
+    A foot touches the floor at a frame while its lowest point is below ``threshold_m``; a step counts as sliding
+    only when the foot touches at both of its frames. Average the displacements over the steps in contact with
+    :func:`contact_mean` (a foot in the air slides by definition never).
+
+    Args:
+        foot_pos: Foot body positions in metres over consecutive frames of one episode (Z up), shape (..., T, F, 3).
+        foot_height: Height of each foot's lowest point in metres, shape (..., T, F).
+        threshold_m: Contact height.
+
+    Returns:
+        (slide, contact): the horizontal (x, y) displacement in mm/frame of every foot and step, shape
+        (..., T - 1, F), and whether that foot touched the floor at both ends of the step, bool, shape (..., T - 1, F).
+    """
+    p = np.asarray(foot_pos, dtype=np.float64)
+    h = np.asarray(foot_height, dtype=np.float64)
+    if p.ndim < 3 or p.shape[-1] != 3 or h.shape != p.shape[:-1]:
+        raise ValueError(f"foot_slide_mm: expected (..., T, F, 3) positions and (..., T, F) heights, got {p.shape}"
+                         f" and {h.shape}")  # fmt: skip
+    slide = 1000.0 * np.linalg.norm(_time_diff(p[..., :2], 1, -3, "foot_slide_mm"), axis=-1)
+    touch = h < threshold_m
+    return slide, touch[..., 1:, :] & touch[..., :-1, :]
+
+
+def contact_mean(slide_sum: ArrayLike, contact_count: ArrayLike, valid: ArrayLike) -> float:
+    """Mean over the (foot, step) pairs in contact of the frames marked valid: ``sum(slide) / count``.
+
+    Args:
+        slide_sum: Per step, the summed slide of the feet in contact (see :func:`foot_slide_mm`), e.g. shape (T, N).
+        contact_count: Per step, how many feet were in contact, same shape.
+        valid: Which steps count, bool, same shape.
+
+    Returns:
+        The mean slide (in the unit of ``slide_sum``); NaN when no foot touched the floor in a valid step.
+    """
+    s = np.asarray(slide_sum, dtype=np.float64)
+    c = np.asarray(contact_count, dtype=np.float64)
+    mask = np.asarray(valid, dtype=bool)
+    if s.shape != mask.shape or c.shape != mask.shape:
+        raise ValueError(f"contact_mean: shapes {s.shape}, {c.shape} and valid {mask.shape} differ")
+    count = float(np.sum(c, where=mask))
+    return float(np.sum(s, where=mask) / count) if count > 0 else float("nan")
+
+
+def target_jitter(pd_targets: ArrayLike) -> NDArray[np.float64]:
+    """PD-target jitter: mean over actuators of ``|q*[t] - 2 q*[t - 1] + q*[t - 2]|``, the targets' second difference.
+
+    Args:
+        pd_targets: The policy's PD targets (hinge angles in rad) over consecutive frames of one episode,
+            shape (..., T, nu).
+
+    Returns:
+        Jitter in rad/frame^2, one value per frame triple (t - 2, t - 1, t), shape (..., T - 2).
+    """
+    q = np.asarray(pd_targets, dtype=np.float64)
+    if q.ndim < 2:
+        raise ValueError(f"target_jitter: expected (..., T, nu) targets, got shape {q.shape}")
+    return np.abs(_time_diff(q, 2, -2, "target_jitter")).mean(axis=-1)
 
 
 def success(

@@ -8,11 +8,15 @@ import numpy as np
 import pytest
 
 from common.evaluation.metrics import (
+    FOOT_CONTACT_HEIGHT_M,
     METRIC_NAMES,
     METRICS,
+    acceleration_error_mm,
     best_index,
     body_rot_error_rad,
+    contact_mean,
     episode_length_ratio,
+    foot_slide_mm,
     joint_vel_error,
     mean_body_pos_error_m,
     mpjpe_global_mm,
@@ -23,6 +27,8 @@ from common.evaluation.metrics import (
     root_rot_error_rad,
     success,
     summarise,
+    target_jitter,
+    velocity_error_mm,
 )
 
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
@@ -111,6 +117,90 @@ def test_root_velocity_errors_345() -> None:
     assert root_lin_vel_error([3.0, 4.0, 0.0], [0.0, 0.0, 0.0]) == pytest.approx(5.0)
     assert root_lin_vel_error([1.0, 1.0, 1.0], [1.0, 4.0, 5.0]) == pytest.approx(5.0)
     assert root_ang_vel_error([0.0, 3.0, 0.0], [0.0, 0.0, -4.0]) == pytest.approx(5.0)
+
+
+# ---------------------------------------------------------------- motion quality
+
+
+def test_constant_acceleration_body_has_its_second_difference_as_error() -> None:
+    t = np.arange(5.0)
+    # Body 0 accelerates along x: p = 0.001 t^2 m, second difference 0.002 m = 2 mm/frame^2 every frame; body 1 is
+    # still. The reference moves both bodies at a constant 1 cm/frame along y: no acceleration.
+    sim = np.zeros((5, 2, 3))
+    sim[:, 0, 0] = 0.001 * t**2
+    ref = np.zeros((5, 2, 3))
+    ref[:, :, 1] = 0.01 * t[:, None]
+    # Mean over the two bodies: (2 + 0) / 2 = 1 mm/frame^2, at the three frame triples of five frames.
+    np.testing.assert_allclose(acceleration_error_mm(sim, ref), [1.0, 1.0, 1.0])
+    # Velocity: body 0 moves 1, 3, 5, 7 mm along x against 10 mm along y; body 1 is 10 mm off.
+    # Body 0: sqrt(1 + 100), sqrt(9 + 100), ...; mean with body 1's 10.
+    expected = [(math.sqrt(d**2 + 100.0) + 10.0) / 2 for d in (1.0, 3.0, 5.0, 7.0)]
+    np.testing.assert_allclose(velocity_error_mm(sim, ref), expected)
+
+
+def test_constant_velocity_body_against_a_still_reference() -> None:
+    t = np.arange(4.0)
+    # One body moving (3, 4, 0) cm per frame: 50 mm/frame off a still reference, no acceleration error.
+    sim = np.zeros((4, 1, 3))
+    sim[:, 0, 0], sim[:, 0, 1] = 0.03 * t, 0.04 * t
+    np.testing.assert_allclose(velocity_error_mm(sim, np.zeros((4, 1, 3))), [50.0, 50.0, 50.0])
+    np.testing.assert_allclose(acceleration_error_mm(sim, np.zeros((4, 1, 3))), [0.0, 0.0], atol=1e-9)
+    # Leading dims are episodes: (N, T, B, 3) -> (N, T - 1).
+    batch = np.stack([sim, np.zeros_like(sim)])
+    np.testing.assert_allclose(velocity_error_mm(batch, np.zeros_like(batch)), [[50.0] * 3, [0.0] * 3])
+
+
+def test_motion_quality_needs_enough_frames() -> None:
+    with pytest.raises(ValueError):
+        acceleration_error_mm(np.zeros((2, 3, 3)), np.zeros((2, 3, 3)))
+    with pytest.raises(ValueError):
+        velocity_error_mm(np.zeros((1, 3, 3)), np.zeros((1, 3, 3)))
+    with pytest.raises(ValueError):
+        target_jitter(np.zeros((2, 28)))
+    with pytest.raises(ValueError):
+        foot_slide_mm(np.zeros((4, 2, 3)), np.zeros((4, 3)))
+
+
+def test_a_sliding_foot_counts_only_while_it_touches_the_floor() -> None:
+    # One foot moving 3 mm/frame along x (and 4 mm/frame along y on one step, and up and down, which do not count):
+    # on the floor for frames 0-2, lifted to 5 cm for frames 3-4, exactly at the threshold at frame 5 (not touching:
+    # the rule is strictly below), back on the floor (1 cm, under 2) at frames 6-7.
+    height = np.array([0.0, -0.01, 0.0, 0.05, 0.05, FOOT_CONTACT_HEIGHT_M, 0.01, 0.01])
+    pos = np.zeros((8, 1, 3))
+    pos[:, 0, 0] = 0.003 * np.arange(8)
+    pos[7, 0, 1] = 0.004
+    pos[:, 0, 2] = height + 0.05
+    slide, contact = foot_slide_mm(pos, height[:, None])
+    np.testing.assert_allclose(slide[:, 0], [3.0] * 6 + [5.0])  # the last step: |(3, 4)| = 5 mm
+    np.testing.assert_array_equal(contact[:, 0], [True, True, False, False, False, False, True])
+    # Mean over the steps in contact: (3 + 3 + 5) / 3 mm/frame.
+    summed = np.where(contact, slide, 0.0).sum(axis=-1)
+    assert contact_mean(summed, contact.sum(axis=-1), np.ones(7, dtype=bool)) == pytest.approx(11.0 / 3)
+    # Leaving the last step out (e.g. past the episode's end): 3 mm/frame.
+    valid = np.arange(7) < 6
+    assert contact_mean(summed, contact.sum(axis=-1), valid) == pytest.approx(3.0)
+    # A lower threshold keeps only frames 0-2 on the floor.
+    _, low = foot_slide_mm(pos, height[:, None], threshold_m=0.005)
+    np.testing.assert_array_equal(low[:, 0], [True, True, False, False, False, False, False])
+
+
+def test_contact_mean_over_feet_and_without_contact() -> None:
+    # Two steps: 2 feet in contact summing 10 mm, then 1 foot with 5 mm: 15 mm over 3 foot-steps.
+    assert contact_mean([10.0, 5.0], [2, 1], [True, True]) == pytest.approx(5.0)
+    assert math.isnan(contact_mean([0.0, 0.0], [0, 0], [True, True]))
+    assert math.isnan(contact_mean([10.0], [2], [False]))
+    with pytest.raises(ValueError):
+        contact_mean([1.0, 2.0], [1, 1], [True])
+
+
+def test_target_jitter_by_hand() -> None:
+    # Actuator 0 alternates +-0.1 rad: second differences -0.4, +0.4, -0.4 -> |.| = 0.4; actuator 1 follows
+    # 0.5 x 0.02 t^2 rad: second difference 0.02. Mean over the two actuators: 0.21 rad/frame^2.
+    t = np.arange(5.0)
+    targets = np.stack([0.1 * (-1.0) ** t, 0.01 * t**2], axis=-1)
+    np.testing.assert_allclose(target_jitter(targets), [0.21, 0.21, 0.21])
+    # A target moving at constant speed does not jitter.
+    np.testing.assert_allclose(target_jitter(0.3 * t[:, None]), [0.0, 0.0, 0.0], atol=1e-12)
 
 
 # ---------------------------------------------------------------- success and length
@@ -258,6 +348,11 @@ def test_metric_registry() -> None:
         "joint_vel_err",
         "root_vel_err",
         "root_ang_vel_err",
+        "accel_err",
+        "vel_err",
+        "foot_slide",
+        "foot_slide_ref",
+        "target_jitter",
         "mpjpe_g_succ",
         "mpjpe_l_succ",
         "success",
@@ -267,6 +362,10 @@ def test_metric_registry() -> None:
     assert METRICS["mpjpe_g"].unit == "mm"
     assert METRICS["root_pos_err"].unit == "m"
     assert METRICS["joint_vel_err"].unit == "rad/s"
+    assert (METRICS["accel_err"].unit, METRICS["vel_err"].unit) == ("mm/frame^2", "mm/frame")
+    assert (METRICS["foot_slide"].unit, METRICS["target_jitter"].unit) == ("mm/frame", "rad/frame^2")
+    assert METRICS["foot_slide_ref"].direction == "not ranked"
+    assert [k for k, m in METRICS.items() if not m.ranked] == ["foot_slide_ref"]
     higher = {k for k, m in METRICS.items() if m.higher_is_better}
     assert higher == {"success", "episode_len_ratio", "survival"}
     assert METRICS["mpjpe_l"].direction == "lower is better"
@@ -281,3 +380,6 @@ def test_best_index() -> None:
         best_index("success", [np.nan])
     with pytest.raises(KeyError):
         best_index("not_a_metric", [1.0])
+    # The reference's own sliding is the same for every tracker: it ranks none.
+    with pytest.raises(ValueError):
+        best_index("foot_slide_ref", [1.0, 2.0])
