@@ -26,6 +26,7 @@ from common.motion.limits import (
     MAX_ROOT_DISTANCE,
     MAX_TOTAL_FRAMES,
     check_regular_file,
+    lengths,
 )
 from common.motion.motion import CLIP_PACK_FORMAT, Clip, MotionFormatError, read_clip_pack, read_deepmimic
 
@@ -74,8 +75,11 @@ def resolve_clips(specs: list[str]) -> list[Clip]:
         elif path.suffix == ".txt" and path.exists():
             clips.append(read_deepmimic(path))
         elif path.suffix == ".h5" and path.exists():
-            if _hdf5_format(path) != CLIP_PACK_FORMAT:
-                raise MotionFormatError(f"{path}: not a clip pack; load motion datasets with load_dataset()")
+            fmt = _hdf5_format(path)
+            if fmt == DATASET_FORMAT:
+                raise MotionFormatError(f"{path}: a motion dataset is given alone, not with other motions")
+            if fmt != CLIP_PACK_FORMAT:
+                raise MotionFormatError(f"{path}: neither a clip pack nor a motion dataset (format {fmt!r})")
             clips += read_clip_pack(path)
         elif (bundled_motion_dir() / f"humanoid3d_{spec}.txt").exists():
             clips.append(read_deepmimic(bundled_motion_dir() / f"humanoid3d_{spec}.txt"))
@@ -177,13 +181,13 @@ def _check_clip(clip: ClipFrames, where: str, humanoid: Humanoid) -> None:
             raise MotionFormatError(f"{where}: frame {bad[0]}: {field} holds a value that is not finite")
     if n < 2:
         raise MotionFormatError(f"{where}: {n} frame(s); a clip needs at least 2")
-    distance = np.linalg.norm(frames.qpos[:, :3], axis=-1)
+    distance = lengths(frames.qpos[:, :3])
     far = np.flatnonzero(distance > MAX_ROOT_DISTANCE)
     if len(far):
         raise MotionFormatError(f"{where}: frame {far[0]}: root {distance[far[0]]:.6g} m from the origin, farther than "
                                 f"{MAX_ROOT_DISTANCE:g} m")  # fmt: skip
     for what, q in (("root quaternion", frames.qpos[:, 3:7]), ("body_rot", frames.body_rot)):
-        off = np.abs(np.linalg.norm(q, axis=-1) - 1.0).reshape(n, -1).max(axis=1)
+        off = np.abs(lengths(q) - 1.0).reshape(n, -1).max(axis=1)
         bad = np.flatnonzero(off > UNIT_QUAT_TOLERANCE)
         if len(bad):
             raise MotionFormatError(f"{where}: frame {bad[0]}: {what} is not a unit quaternion (length off 1 by "
@@ -203,7 +207,7 @@ def _body_names(f: h5py.File, where: str) -> tuple[str, ...]:
     value = f.attrs.get("body_names")
     if not (isinstance(value, np.ndarray) and value.ndim == 1 and all(isinstance(v, bytes | str) for v in value)):
         raise MotionFormatError(f"{where}: attribute 'body_names' must be a list of strings, got "
-                                f"{hdf5.describe(value)}")
+                                f"{hdf5.describe(value)}")  # fmt: skip
     return tuple(v.decode("utf-8", "replace") if isinstance(v, bytes) else v for v in value)
 
 

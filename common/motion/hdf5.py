@@ -29,6 +29,8 @@ def describe(value: Any) -> str:
     """An attribute value for messages: ``'60' (a string)``, ``True (a boolean)``, ``an array of shape (2,)``."""
     if isinstance(value, np.ndarray):
         return f"an array of shape {value.shape}"
+    if isinstance(value, np.generic):
+        value = value.item()
     if isinstance(value, bool | np.bool_):
         return f"{bool(value)} (a boolean)"
     if isinstance(value, bytes | str):
@@ -46,9 +48,9 @@ def attr(obj: h5py.HLObject, name: str, kind: str, where: str) -> Any:
     Raises:
         MotionFormatError: the attribute is missing, unreadable or of another type.
     """
+    if name not in obj.attrs:
+        raise MotionFormatError(f"{where}: no '{name}' attribute")
     try:
-        if name not in obj.attrs:
-            raise MotionFormatError(f"{where}: no '{name}' attribute")
         value = obj.attrs[name]
     except (OSError, TypeError, ValueError) as e:
         raise MotionFormatError(f"{where}: attribute '{name}' cannot be read ({e})") from None

@@ -14,6 +14,8 @@ import math
 import stat
 from pathlib import Path
 
+import numpy as np
+
 MIN_FRAME_DURATION = 1e-4  # s: 10 kHz, faster than any motion capture; 1e-9 s frames are a unit slip or a glitch
 MAX_FRAME_DURATION = 1.0  # s: one keyframe a second; the library interpolates linearly between keyframes
 MAX_CLIP_DURATION = 600.0  # s: resampled at 60 Hz a clip of 10 minutes takes ~100 MB of per-frame states
@@ -53,6 +55,13 @@ def check_regular_file(path: Path, error: type[Exception], max_bytes: int | None
         raise error(f"{path}: not a regular file ({kind})")
     if max_bytes is not None and st.st_size > max_bytes:
         raise error(f"{path}: {st.st_size:,} bytes, more than the {max_bytes:,} this reader takes")
+
+
+def lengths(v: np.ndarray) -> np.ndarray:
+    """Euclidean lengths over the last axis without overflow: the largest component is taken out first, so that a
+    quaternion of 1e200 has length 1e200, not inf (its square overflows). Shape: (..., k) -> (...)."""
+    scale = np.abs(v).max(axis=-1, initial=0.0)
+    return scale * np.linalg.norm(v / np.where(scale > 0, scale, 1.0)[..., None], axis=-1)
 
 
 def show_value(value: object) -> str:

@@ -36,6 +36,7 @@ from common.motion.limits import (
     MIN_QUAT_NORM,
     QUAT_NORM_RANGE,
     check_regular_file,
+    lengths,
     show_value,
 )
 
@@ -146,7 +147,7 @@ def frames_to_clip(frames: np.ndarray, loop: str, name: str, source: str) -> Cli
     times = np.concatenate([[0.0], np.cumsum(dur)])
     if times[-1] > MAX_CLIP_DURATION:
         raise MotionFormatError(f"{source}: the clip lasts {times[-1]:.6g} s, longer than {MAX_CLIP_DURATION:g} s")
-    _check_bound(np.linalg.norm(frames[:, 1:4], axis=-1), MAX_ROOT_DISTANCE, source,
+    _check_bound(lengths(frames[:, 1:4]), MAX_ROOT_DISTANCE, source,
                  "root {:.6g} m from the origin, farther than {:g} m")  # fmt: skip
 
     root_pos = y_up_to_z_up_pos(frames[:, 1:4])
@@ -178,9 +179,7 @@ def _check_bound(values: np.ndarray, bound: float, source: str, problem: str) ->
 
 
 def _unit_quats(q: np.ndarray, source: str, joint: str) -> np.ndarray:
-    # The largest component first: the norm of (1e200, 0, 0, 0) overflows when squared, its scaled norm does not.
-    scale = np.abs(q).max(axis=-1)
-    norm = scale * np.linalg.norm(q / np.where(scale > 0, scale, 1.0)[:, None], axis=-1)
+    norm = lengths(q)
     bad = np.flatnonzero(norm < MIN_QUAT_NORM)
     if len(bad):
         raise MotionFormatError(f"{source}: frame {bad[0]}: zero-length quaternion for joint '{joint}'")

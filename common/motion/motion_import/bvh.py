@@ -165,10 +165,11 @@ def _joint(lines: _Lines, joints: list[BvhJoint], name: str, parent: int, column
     ``depth`` counts the joints from the root to this one; deeper than :data:`~common.motion.limits.MAX_BVH_DEPTH`
     is refused before recursing further (3,000 nested joints ran Python out of stack).
     """
+    here = lines.items[lines.pos - 1][0]  # the ROOT or JOINT line
     if depth > MAX_BVH_DEPTH:
-        raise lines.error(f"joint '{name}' is {depth} joints deep; at most {MAX_BVH_DEPTH} are read")
+        raise lines.error(f"joint '{name}' is {depth} joints deep; at most {MAX_BVH_DEPTH} are read", here)
     if len(joints) >= MAX_BVH_JOINTS:
-        raise lines.error(f"more than {MAX_BVH_JOINTS} joints")
+        raise lines.error(f"joint '{name}': more than {MAX_BVH_JOINTS} joints", here)
     offset = _block_start(lines, f"joint '{name}'")
     n, tok = lines.next("CHANNELS")
     if tok[0] != "CHANNELS" or len(tok) < 2:

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from common.character.humanoid import Humanoid
-from common.motion.motion import Clip
+from common.motion.motion import Clip, MotionFormatError
 from common.motion.motion_import.bvh import BvhJoint, quat_to_euler, write_bvh
-from common.motion.motion_import.deepmimic import z_up_to_y_up_pos, z_up_to_y_up_quat
+from common.motion.motion_import.deepmimic import check_writable, z_up_to_y_up_pos, z_up_to_y_up_quat
 from common.motion.motion_import.retarget import zero_pose
 
 CM = 100.0
@@ -34,11 +34,13 @@ def humanoid_bvh(clip: Clip, humanoid: Humanoid, up: str = "y") -> tuple[tuple[B
         up: ``"y"``: DeepMimic's frame, (x, y, z) -> (x, z, -y); ``"z"``: the project's own axes.
 
     Raises:
-        ValueError: if the clip's keyframes are not evenly spaced (BVH has one frame time).
+        MotionFormatError: a clip the DeepMimic reader would refuse (:func:`check_writable`: one keyframe, a frame
+            time or a root out of bounds, ...), or keyframes not evenly spaced (BVH has one frame time).
     """
+    check_writable(clip)
     steps = np.diff(clip.times)
     if not np.allclose(steps, steps[0], rtol=1e-6, atol=1e-9):
-        raise ValueError(f"{clip.source}: keyframes are not evenly spaced; BVH needs one frame time")
+        raise MotionFormatError(f"{clip.source}: keyframes are not evenly spaced; BVH needs one frame time")
     if up not in ("y", "z"):
         raise ValueError(f"up must be 'y' or 'z', got {up!r}")
     pos_axes = z_up_to_y_up_pos if up == "y" else np.asarray

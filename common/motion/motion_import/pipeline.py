@@ -65,7 +65,7 @@ def import_clip(spec: str, humanoid: Humanoid, options: ImportOptions) -> tuple[
         except MotionFormatError as e:  # some name the joint map or a bone only: name the take too
             raise (e if bvh.source in str(e) else MotionFormatError(f"{bvh.source}: {e}")) from None
         clip = result.clip
-        check_writable(clip)  # a take of one frame, or 900 m away, is refused here rather than written
+        check_playable(clip, humanoid)  # a take of one frame, or 900 m away, is refused here rather than written
         notes += [f"read {spec}: {len(bvh.joints)} joints, {bvh.num_frames} frames at {1 / bvh.frame_time:.1f} fps",
                   result.report()]  # fmt: skip
     else:
@@ -85,11 +85,18 @@ def import_clip(spec: str, humanoid: Humanoid, options: ImportOptions) -> tuple[
         notes.append(ground.report())
     if options.loop is not None:
         clip = cleanup.set_loop(clip, options.loop)
+    check_playable(clip, humanoid)
+    return clip, notes
+
+
+def check_playable(clip: Clip, humanoid: Humanoid) -> None:
+    """Raises, naming ``clip.source``, what a loader would refuse in the clip as written: what the DeepMimic reader
+    refuses (:func:`~common.motion.motion_import.deepmimic.check_writable`), and a one-shot clip shorter than one
+    control step, which the motion library cannot put on its grid."""
     check_writable(clip)
     if not clip.loop and clip.duration < humanoid.physics.control_dt:
         raise MotionFormatError(f"{clip.source}: the clip lasts {clip.duration:.4g} s, shorter than one control step "
                                 f"({humanoid.physics.control_dt:.4g} s): no command could play it")  # fmt: skip
-    return clip, notes
 
 
 def write_clip(path: str | Path, clip: Clip, humanoid: Humanoid) -> None:
