@@ -19,7 +19,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from common.evaluation.evaluate import EvalResult, evaluate, reference_policy  # noqa: E402
-from common.train.training import Trainer, compat_meta, setup  # noqa: E402
+from common.train.startup import setup  # noqa: E402
+from common.train.training import Trainer, compat_meta  # noqa: E402
 from ppo.config import PPOTrackerConfig  # noqa: E402
 from ppo.learner import PPOLearner  # noqa: E402
 from ppo.train import build_parser  # noqa: E402

@@ -45,6 +45,16 @@ _Loader.add_implicit_resolver(
 )
 
 
+class YAMLTextError(yaml.YAMLError, ValueError):
+    """YAML text that does not parse, or asks for a tag the safe loader refuses (``!!python/object``); a
+    ``ValueError`` too, so that a reader catching bad values catches it. ``str()`` is one line (:func:`yaml_problem`).
+    """
+
+    def __init__(self, problem: str, problem_mark: Any = None) -> None:
+        self.problem, self.problem_mark = problem, problem_mark
+        super().__init__(yaml_problem(self))
+
+
 def parse_yaml(text: str) -> Any:
     """Parse YAML text with the safe loader used for config files and overrides.
 
@@ -53,14 +63,25 @@ def parse_yaml(text: str) -> Any:
 
     Returns:
         The parsed Python object (dicts, lists, scalars).
+
+    Raises:
+        YAMLTextError: If the text is not YAML the safe loader reads (one line: the problem and where).
     """
-    return yaml.load(text, Loader=_Loader)  # noqa: S506 -- _Loader derives from SafeLoader
+    try:
+        return yaml.load(text, Loader=_Loader)  # noqa: S506 -- _Loader derives from SafeLoader
+    except YAMLTextError:
+        raise
+    except yaml.YAMLError as e:
+        problem = getattr(e, "problem", None) or (str(e).splitlines() or [type(e).__name__])[0]
+        raise YAMLTextError(problem, getattr(e, "problem_mark", None)) from None
+    except RecursionError:
+        raise YAMLTextError("nested too deeply to read") from None
 
 
 def yaml_problem(e: yaml.YAMLError) -> str:
     """PyYAML's error on one line: the problem and where (its own message spans several, with a source excerpt)."""
     mark = getattr(e, "problem_mark", None)
-    problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+    problem = getattr(e, "problem", None) or (str(e).splitlines() or [type(e).__name__])[0]
     return f"{problem} at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else problem
 
 
@@ -73,27 +94,39 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path`` that replaces ``path`` only if the block succeeds.
 
     The temporary file lives in the same folder so that ``os.replace`` is an atomic rename; on any
-    exception it is removed and ``path`` keeps its previous content. The file gets the mode a plain ``open``
-    would give it (``path``'s own if it exists, else 0o666 less the umask), not the temporary file's 0o600.
+    exception (a full disk at any byte) it is removed and ``path`` keeps its previous content. The file gets the
+    mode a plain ``open`` would give it (``path``'s own if it exists, else 0o666 less the umask), not the temporary
+    file's 0o600.
 
     Args:
         path: Final destination.
 
     Yields:
         Temporary path to write to.
+
+    Raises:
+        OSError: Naming ``path`` (not the temporary file) when the folder, the temporary file or the rename fails
+            with an ``OSError`` about them (no space left, permission denied, a directory in the way).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
+    tmp: Path | None = None
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        os.close(fd)
+        tmp = Path(tmp_name)
         yield tmp
         if tmp.exists():
             tmp.chmod(path.stat().st_mode & 0o7777 if path.exists() else 0o666 & ~_UMASK)
         os.replace(tmp, path)
+    except OSError as e:
+        about = {str(p) for p in path.parents} | ({str(tmp)} if tmp is not None else set())
+        if e.errno is None or (e.filename is not None and str(e.filename) not in about):
+            raise
+        raise OSError(e.errno, e.strerror, str(path)) from e
     finally:
-        tmp.unlink(missing_ok=True)
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
 
 
 def load_config(cls: type[T], path: str | Path, overrides: Sequence[str] = ()) -> T:

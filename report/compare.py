@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -27,10 +26,20 @@ import torch
 from common.bundled_configs import plain_help
 from common.character.humanoid import Humanoid
 from common.config import ConfigError
+from common.errors import (
+    MAX_FRAMES,
+    CommandParser,
+    check_output_dir,
+    frame_count,
+    non_negative_int,
+    one_line_errors,
+    positive_int,
+)
 from common.evaluation.evaluate import EvalConfig, EvalResult, Policy, evaluate
 from common.motion.dataset import bundled_clip_names, load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
+from common.run.checkpoint import CheckpointError
 from common.sim.pushes import PushConfig
 from common.tools import render
 from report import figures, tables
@@ -293,37 +302,40 @@ def _results_json(report: Report) -> dict[str, Any]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="compare-trackers", description=plain_help(__doc__.split("\n\n")[0]),
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = CommandParser(prog="compare-trackers", description=plain_help(__doc__.split("\n\n")[0]),
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("runs", nargs="+", metavar="RUN_DIR", help="training run directories")
     parser.add_argument("--out", required=True, help="report directory")
-    parser.add_argument("--checkpoint", type=int, default=None, metavar="ITER",
+    parser.add_argument("--checkpoint", type=non_negative_int, default=None, metavar="ITER",
                         help="evaluate checkpoint ckpt_<ITER>.pt of every run (default: the newest)")  # fmt: skip
     parser.add_argument("--motions", nargs="+", default=None,
                         help="motions to evaluate on (default: the union of the runs' training motions)")  # fmt: skip
-    parser.add_argument("--starts", type=int, default=None, help="start frames per clip (default: first run's)")
-    parser.add_argument("--max-frames", type=int, default=None, help="steps per episode (default: first run's)")
-    parser.add_argument("--render-clips", type=int, default=1,
+    parser.add_argument("--starts", type=positive_int, default=None,
+                        help="start frames per clip (default: first run's)")  # fmt: skip
+    parser.add_argument("--max-frames", type=frame_count, default=None,
+                        help=f"steps per episode (default: first run's; at most {MAX_FRAMES})")  # fmt: skip
+    parser.add_argument("--render-clips", type=non_negative_int, default=1,
                         help="clips per run drawn as filmstrips: the best, the worst and evenly between by the first "
                              "run's MPJPE-g")  # fmt: skip
     parser.add_argument("--no-render", action="store_true", help="skip the filmstrips and videos")
-    parser.add_argument("--video-clips", type=int, default=None, metavar="N",
+    parser.add_argument("--video-clips", type=non_negative_int, default=None, metavar="N",
                         help="clips per method rendered as MP4 (first run of each learner; default: every clip)")
     parser.add_argument("--no-pushes", action="store_true",
                         help="skip the robustness re-evaluation (pushes on the pelvis)")  # fmt: skip
-    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--threads", type=positive_int, default=1, help="torch threads")
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    args = build_parser().parse_args(argv)
-    torch.set_num_threads(max(1, args.threads))
-    try:
+    """``compare-trackers``: bad input ends in one line and exit status 2 with no report written; a report that
+    cannot be written (a full disk) in one line and exit status 1."""
+    with one_line_errors(ReportError, ConfigError, MotionFormatError, CheckpointError):
+        args = build_parser().parse_args(argv)
+        check_output_dir(args.out)
+        torch.set_num_threads(args.threads)
         report = build_report(args.runs, args.out, args.checkpoint, args.motions, args.starts, args.max_frames,
                               args.render_clips, not args.no_render, not args.no_pushes,
                               args.video_clips)  # fmt: skip
-    except (ReportError, ConfigError) as e:
-        sys.exit(f"error: {e}")
     for label, result in zip((r.label for r in report.runs), report.results, strict=True):
         print(f"== {label}\n{result.table()}")
     for note in report.notes:

@@ -35,7 +35,17 @@ from torch import nn
 
 from common.bundled_configs import plain_help
 from common.character.humanoid import Humanoid
-from common.config import atomic_output
+from common.config import ConfigError, atomic_output
+from common.errors import (
+    EXIT_RUN_FAILED,
+    CommandParser,
+    check_output_file,
+    exit_status,
+    fail,
+    non_negative_int,
+    one_line,
+)
+from common.run.checkpoint import CheckpointError
 from report.runs import ReportError, export_module, load_run
 
 # The lowest opset torch's exporter writes without a version conversion (onnxruntime >= 1.14 runs it).
@@ -124,41 +134,57 @@ def sidecar_path(onnx_path: Path) -> Path:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="export-policy", description=plain_help(__doc__), epilog=EXAMPLES,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = CommandParser(prog="export-policy", description=plain_help(__doc__), epilog=EXAMPLES,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("run", metavar="RUN_DIR", help="a training run directory (SuperTrack or PPO)")
-    parser.add_argument("--checkpoint", type=int, metavar="ITER", help="checkpoint iteration (default: the newest)")
+    parser.add_argument("--checkpoint", type=non_negative_int, metavar="ITER",
+                        help="checkpoint iteration (default: the newest)")  # fmt: skip
     parser.add_argument("--onnx", required=True, type=Path, metavar="FILE", help="the ONNX file to write")
-    parser.add_argument("--opset", type=int, default=DEFAULT_OPSET,
+    parser.add_argument("--opset", type=_opset, default=DEFAULT_OPSET,
                         help=f"ONNX opset (default {DEFAULT_OPSET}; lower ones converted where ONNX can)")  # fmt: skip
     return parser
 
 
+def _opset(text: str) -> int:
+    """``--opset``'s value: an ONNX opset, 7 or above."""
+    value = non_negative_int(text)
+    if value < 7:
+        raise argparse.ArgumentTypeError(f"ONNX opsets below 7 are not supported, got {value}")
+    return value
+
+
 def main(argv: list[str] | None = None) -> int:
+    """``export-policy``: bad input ends in one line and exit status 2 with nothing written; an export whose graph
+    onnxruntime disagrees with, or a file that cannot be written (a full disk), in one line and exit status 1."""
+    return exit_status(lambda: _main(argv), ReportError, ConfigError, CheckpointError)
+
+
+def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     missing = [p for p in ("onnx", "onnxruntime", "onnxscript") if importlib.util.find_spec(p) is None]
     if missing:
-        print(f"error: export-policy needs {', '.join(missing)}: pip install -e '.[onnx]'", file=sys.stderr)
-        return 2
+        fail(f"export-policy needs {', '.join(missing)}: pip install -e '.[onnx]'")
+    for path in (args.onnx, sidecar_path(args.onnx)):
+        check_output_file(path, "--onnx")
+    run = load_run(args.run, args.checkpoint)
+    module = export_module(run.learner)
+    if not hasattr(module, "onnx_module"):
+        name = "SAMCON" if run.learner == "samcon" else run.learner
+        fail(f"{run.path}: {name} has no network policy to export")
+    humanoid = Humanoid(run.physics())
     try:
-        if args.opset < 7:
-            raise ValueError(f"--opset {args.opset}: ONNX opsets below 7 are not supported")
-        run = load_run(args.run, args.checkpoint)
-        module = export_module(run.learner)
-        if not hasattr(module, "onnx_module"):
-            name = "SAMCON" if run.learner == "samcon" else run.learner
-            raise ValueError(f"{run.path}: {name} has no network policy to export")
-        humanoid = Humanoid(run.physics())
         net, spec = module.onnx_module(run.path, run.checkpoint, humanoid)
-    except (ReportError, ValueError, KeyError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    except (ValueError, KeyError) as e:  # a checkpoint that is not this learner's
+        fail(one_line(e))
     try:
         with atomic_output(args.onnx) as tmp:
             max_diff = export_onnx(net, spec, tmp, args.opset)
-    except (ValueError, ExportError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2 if isinstance(e, ValueError) else 1
+    except ValueError as e:
+        fail(one_line(e))
+    except ExportError as e:
+        fail(one_line(e), EXIT_RUN_FAILED)
+    except OSError as e:
+        fail(f"{args.onnx}: cannot write it: {e.strerror or one_line(e)}; nothing was changed", EXIT_RUN_FAILED)
     sidecar = {
         "learner": run.learner, "run_dir": str(run.path.resolve()), "checkpoint": str(run.checkpoint),
         "iteration": run.iteration, "samples": run.samples, "opset": args.opset, "dtype": "float32",
@@ -166,8 +192,12 @@ def main(argv: list[str] | None = None) -> int:
         "check": {"max_abs_diff_onnxruntime_torch": max_diff, "batch": CHECK_BATCH, "inputs": "standard normal"},
         "torch": torch.__version__,
     }  # fmt: skip
-    with atomic_output(sidecar_path(args.onnx)) as tmp:
-        tmp.write_text(json.dumps(sidecar, indent=2) + "\n", encoding="utf-8")
+    try:
+        with atomic_output(sidecar_path(args.onnx)) as tmp:
+            tmp.write_text(json.dumps(sidecar, indent=2) + "\n", encoding="utf-8")
+    except OSError as e:
+        fail(f"{sidecar_path(args.onnx)}: cannot write it: {e.strerror or one_line(e)} ({args.onnx} was written)",
+             EXIT_RUN_FAILED)  # fmt: skip
     print(f"{run.label} (iteration {run.iteration}): wrote {args.onnx} and {sidecar_path(args.onnx)} "
           f"(opset {args.opset}; onnxruntime matches torch within {max_diff:.1e})")  # fmt: skip
     return 0

@@ -24,9 +24,24 @@ import numpy as np
 from common.bundled_configs import PRETRAINED_ROOT, plain_help
 from common.character.humanoid import Humanoid
 from common.config import ConfigError
+from common.errors import (
+    EXIT_NO_RENDERER,
+    EXIT_RUN_FAILED,
+    MAX_FRAMES,
+    CommandParser,
+    check_output_file,
+    exit_status,
+    fail,
+    frame_count,
+    non_negative_int,
+    one_line,
+    pixels,
+)
 from common.motion.dataset import load_motions
 from common.motion.motion import MotionFormatError
+from common.run.checkpoint import CheckpointError
 from common.tools import render
+from common.tools.motions import clip_option
 from report.runs import ReportError, export_module, load_run
 
 
@@ -68,41 +83,56 @@ def view(sim_qpos: np.ndarray, ref_qpos: np.ndarray, humanoid: Humanoid, fps: fl
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="watch-policy", description=plain_help(__doc__),
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    """``watch-policy``: bad input ends in one line and exit status 2 with nothing written; a video that cannot be
+    written (a full disk) in one line and exit status 1; no display and no renderer: exit status 3."""
+    return exit_status(lambda: _main(argv), ReportError, MotionFormatError, ConfigError, CheckpointError)
+
+
+def _main(argv: list[str] | None) -> int:
+    parser = CommandParser(prog="watch-policy", description=plain_help(__doc__),
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("run", help="a training run directory, or 'pretrained' for the general tracker that ships with "
                                     "the project")
     parser.add_argument("--motions", nargs="+", help="motions to track (default: the run's training motions)")
     parser.add_argument("--clip", help="which clip of the motions (default: the first)")
-    parser.add_argument("--checkpoint", type=int, help="checkpoint iteration (default: the newest)")
-    parser.add_argument("--frames", type=int, default=512, help="most steps played (default 512)")
+    parser.add_argument("--checkpoint", type=non_negative_int, help="checkpoint iteration (default: the newest)")
+    parser.add_argument("--frames", type=frame_count, default=512,
+                        help=f"most steps played (default 512, at most {MAX_FRAMES})")  # fmt: skip
     parser.add_argument("--out", help="write an MP4 here instead of opening the viewer")
-    parser.add_argument("--size", type=int, nargs=2, default=(480, 360), metavar=("W", "H"), help="video pixels")
+    parser.add_argument("--size", type=pixels, nargs=2, default=(480, 360), metavar=("W", "H"), help="video pixels")
     args = parser.parse_args(argv)
+    if args.out is not None:
+        check_output_file(args.out)
+    run = load_run(args.run, args.checkpoint)
+    humanoid = Humanoid(run.physics())
+    library = load_motions(args.motions or run.motions, humanoid)
+    clip = clip_option(library, args.clip)
+    out, backend, why = None, None, ""
+    if args.out is not None or not has_display():
+        # Beside the run, except for a bundled policy (the project's own folder): then in the working directory.
+        folder = Path.cwd() if run.path.is_relative_to(PRETRAINED_ROOT) else run.path
+        out = Path(args.out or folder / f"watch_{library.names[clip]}.mp4")
+        if args.out is None:
+            check_output_file(out, "video")
+        backend, why = render.find_backend()
+        if backend is None:
+            fail(f"no display and {why}", EXIT_NO_RENDERER)
     try:
-        run = load_run(args.run, args.checkpoint)
-        humanoid = Humanoid(run.physics())
-        library = load_motions(args.motions or run.motions, humanoid)
-        clip = library.clip_index(args.clip) if args.clip else 0
         policy = export_module(run.learner).load_eval_policy(run.path, run.checkpoint, humanoid, library)
-        sim, ref = render.record_rollout(policy, library, humanoid, clip, args.frames, run.eval_config())
-    except (ReportError, MotionFormatError, ConfigError, KeyError, ValueError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    except ValueError as e:  # a checkpoint that is not this learner's
+        fail(one_line(e))
+    sim, ref = render.record_rollout(policy, library, humanoid, clip, args.frames, run.eval_config())
     fps = humanoid.physics.control_hz
     note = f"{run.label} on {library.names[clip]}: {len(sim)} frames before the episode ended or --frames"
-    if args.out is None and has_display():
+    if out is None:
         print(note + "; close the viewer window to quit")
         view(sim, ref, humanoid, fps)
         return 0
-    # Beside the run, except for a bundled policy (the project's own folder): then in the working directory.
-    folder = Path.cwd() if run.path.is_relative_to(PRETRAINED_ROOT) else run.path
-    out = Path(args.out or folder / f"watch_{library.names[clip]}.mp4")
-    backend, why = render.find_backend()
-    if backend is None:
-        print(f"error: no display and {why}", file=sys.stderr)
-        return 3
-    render.video(sim, ref, humanoid, out, backend, fps=fps, width=args.size[0], height=args.size[1])
+    assert backend is not None
+    try:
+        render.video(sim, ref, humanoid, out, backend, fps=fps, width=args.size[0], height=args.size[1])
+    except OSError as e:
+        fail(f"{out}: cannot write it: {e.strerror or one_line(e)}", EXIT_RUN_FAILED)
     print(f"{note}; wrote {out}")
     return 0
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 import zlib
 from collections.abc import Sequence
@@ -31,6 +30,7 @@ from common.bundled_configs import config_help, default_config, resolve_config
 from common.character.humanoid import Humanoid
 from common.character.kinematics import ForwardKinematics
 from common.config import ConfigError, atomic_output, load_config
+from common.errors import CommandParser, fail, non_negative_int, one_line_errors, os_error_line
 from common.evaluation.evaluate import EvalConfig, EvalResult, evaluate
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
@@ -402,7 +402,7 @@ def clip_generator(seed: int, name: str) -> np.random.Generator:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(
         prog="track-samcon", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="SAMCON open-loop trajectories and linear feedback policies for clips, as a run directory.",
         epilog="examples:\n  track-samcon --motions walk run --out runs/samcon-walk-run\n"
@@ -411,7 +411,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--config", default=str(default_config("samcon")), help=config_help("samcon"))
     parser.add_argument("--motions", nargs="+", default=None, help="motions to track, overriding train.motions")
     parser.add_argument("--out", default=None, help="run directory (default: runs/samcon-<date>-<time>); must be new")
-    parser.add_argument("--seed", type=int, default=None, help="sampling seed (train.seed)")
+    parser.add_argument("--seed", type=non_negative_int, default=None, help="sampling seed (train.seed)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override any config value, e.g. --set search.samples=400 (repeatable)")  # fmt: skip
     return parser
@@ -428,6 +428,13 @@ def cli_overrides(args: argparse.Namespace) -> list[str]:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
+    """``track-samcon``: bad input ends in one line and exit status 2 with no run directory made; a failure during
+    the run (a full disk) in one line and exit status 1 (:mod:`common.errors`)."""
+    with one_line_errors(ConfigError, RunDirError, MotionFormatError):
+        _main(argv)
+
+
+def _main(argv: Sequence[str] | None) -> None:
     args = build_parser().parse_args(argv)
     overrides = cli_overrides(args)
     try:
@@ -440,10 +447,13 @@ def main(argv: Sequence[str] | None = None) -> None:
         except ValueError as e:
             raise ConfigError(f"{args.config}: {e}") from None
         run_dir = RunDir(args.out or f"runs/{LEARNER}-{datetime.now().strftime('%Y%m%d-%H%M%S')}", resume=False)
-    except (ConfigError, RunDirError, MotionFormatError, FileNotFoundError) as e:
-        sys.exit(f"error: {e}")
-    run_dir.save_config(cfg)
-    info = run_dir.write_run_info({"learner": LEARNER, "seed": cfg.train.seed, "motions": list(library.names)})
+    except OSError as e:  # a config or motion file that cannot be read
+        fail(os_error_line(e))
+    try:
+        run_dir.save_config(cfg)
+        info = run_dir.write_run_info({"learner": LEARNER, "seed": cfg.train.seed, "motions": list(library.names)})
+    except OSError as e:
+        fail(f"run directory {run_dir.path}: cannot write {os_error_line(e)}")
     t0 = time.perf_counter()
     with open(run_dir.path / "progress.log", "a", encoding="utf-8") as log:
         results = [track_clip(cfg, humanoid, library, c, clip_generator(cfg.train.seed, name), log)

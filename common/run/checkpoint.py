@@ -16,7 +16,9 @@ recorded digests reveal damage that would still unpickle (flipped bits inside a 
 
 from __future__ import annotations
 
+import errno
 import hashlib
+import io
 import json
 import pickle
 import re
@@ -24,7 +26,7 @@ import sys
 import warnings
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 import torch
@@ -93,16 +95,74 @@ def file_digest(path: Path) -> str:
 def save_checkpoint_file(state: Mapping[str, Any], path: Path) -> dict[str, Any]:
     """Write ``state`` to ``path`` atomically; returns its pointer record (iteration, bytes, sha256).
 
-    If the write fails part-way (a full disk), ``path`` keeps its previous content and the partial file is removed.
+    If the write fails part-way (a full disk at any byte), ``path`` keeps its previous content and the partial file is
+    removed.
 
     Raises:
         TypeError: Naming the entry if ``state`` holds anything but tensors, number arrays and plain values.
+        OSError: Naming ``path`` if it cannot be written (torch's own failure of a write is raised as the ``OSError``
+            behind it, e.g. ENOSPC, or as EIO).
     """
     check_plain(state)
     with atomic_output(path) as tmp:
-        torch.save(dict(state), tmp)
+        _torch_save(dict(state), tmp)
         record = {"iteration": state.get("iteration"), "bytes": tmp.stat().st_size, "sha256": file_digest(tmp)}
     return record
+
+
+# What torch raises when a write of its zip writer failed (the disk filled): it does not pass the OSError on.
+_TORCH_WRITE_FAILED = re.compile(r"inline_container|PytorchStreamWriter|unexpected pos|write failed|iostream error")
+
+
+class _KeepsWriteErrors(io.RawIOBase):
+    """A binary file for ``torch.save`` that keeps the first ``OSError`` of a write, which torch would drop."""
+
+    def __init__(self, file: BinaryIO) -> None:
+        super().__init__()
+        self.file = file
+        self.error: OSError | None = None
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, data: Any) -> int:
+        try:
+            return self.file.write(data)
+        except OSError as e:
+            self.error = self.error or e
+            raise
+
+    def flush(self) -> None:
+        self.file.flush()
+
+
+def _torch_save(state: dict[str, Any], path: Path) -> None:
+    """``torch.save(state, path)``, with a failed write raised as the ``OSError`` behind it.
+
+    torch reports a write that failed (a full disk) as ``RuntimeError: [enforce fail at inline_container.cc:...]
+    unexpected pos`` or ``basic_ios::clear: iostream error``, its errno lost. Then the save is tried once more
+    through a file object that keeps the write's ``OSError`` (ENOSPC): the failure is reported as what it is, and a
+    passing hiccup is written after all.
+
+    Raises:
+        OSError: Naming ``path``: the write's own error, else EIO with torch's message.
+    """
+    try:
+        torch.save(state, path)
+        return
+    except RuntimeError as e:
+        first = e
+    with path.open("wb") as f:
+        out = _KeepsWriteErrors(f)
+        try:
+            torch.save(state, out)
+        except RuntimeError:
+            if out.error is not None and out.error.errno is not None:
+                raise OSError(out.error.errno, out.error.strerror, str(path)) from first
+            if not _TORCH_WRITE_FAILED.search(str(first)):
+                raise first from None  # not a write that failed: a bug, with its traceback
+            detail = str(first).splitlines()[0].strip()
+            raise OSError(errno.EIO, f"the write failed part-way (torch: {detail})", str(path)) from first
 
 
 def load_checkpoint_file(path: str | Path, map_location: str | torch.device | None = "cpu",

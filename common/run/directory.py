@@ -36,6 +36,7 @@ import numpy as np
 import torch
 
 from common.config import atomic_output, load_config, save_config
+from common.errors import output_dir_problem
 from common.run.checkpoint import (
     LEGACY_LATEST_NAME,
     POINTER_NAME,
@@ -113,17 +114,20 @@ class RunDir:
     """A run's output directory: config, run info, metrics and checkpoints.
 
     Args:
-        path: Directory; created with its parents if needed.
+        path: Directory; created with its parents if needed (by :meth:`create`).
         resume: Continue the run stored in ``path``; requires at least one checkpoint.
         keep_checkpoints: Number of newest numbered checkpoints kept.
+        create: Create the directory now; False only checks that it can be (a command creates it with
+            :meth:`create` once everything else has been validated, so that a refused start leaves nothing behind).
 
     Raises:
-        RunDirError: If ``path`` already holds a run and ``resume`` is False, or ``resume`` is True and
-            there is no checkpoint to resume from.
+        RunDirError: If ``path`` already holds a run and ``resume`` is False, ``resume`` is True and there is no
+            checkpoint to resume from, or ``path`` cannot be a directory of this user's (an existing file, inside a
+            file, not writable).
         ValueError: If ``keep_checkpoints < 1``.
     """
 
-    def __init__(self, path: str | Path, resume: bool, keep_checkpoints: int = 3) -> None:
+    def __init__(self, path: str | Path, resume: bool, keep_checkpoints: int = 3, create: bool = True) -> None:
         if keep_checkpoints < 1:
             raise ValueError(f"keep_checkpoints must be >= 1, got {keep_checkpoints}")
         self.path = Path(path)
@@ -137,8 +141,9 @@ class RunDir:
         self.pointer_path = self.checkpoint_dir / POINTER_NAME
         self.start_time = datetime.now(timezone.utc)
         self._resume_info: dict[str, Any] | None = None
-        if self.path.exists() and not self.path.is_dir():
-            raise RunDirError(f"run directory {self.path} exists and is not a directory")
+        problem = output_dir_problem(self.path)
+        if problem is not None:
+            raise RunDirError(f"run directory {self.path}: {problem}")
         holds_run = self.config_path.exists() or self.checkpoint_dir.exists()
         if holds_run and not resume:
             raise RunDirError(
@@ -149,7 +154,19 @@ class RunDir:
                 f"cannot resume: run directory {self.path} has no checkpoint in {self.checkpoint_dir}; "
                 "start without --resume in another --out (or delete the directory)"
             )
-        self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
+        if create:
+            self.create()
+
+    def create(self) -> None:
+        """Creates the directory and its ``checkpoints/`` (nothing if they exist).
+
+        Raises:
+            RunDirError: Naming the directory if it cannot be created (read-only, no space).
+        """
+        try:
+            self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise RunDirError(f"run directory {self.path}: cannot create it: {e.strerror or e}") from None
 
     def save_config(self, cfg: Any) -> None:
         """Write the resolved config dataclass to ``config.yaml`` (atomically)."""

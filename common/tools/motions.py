@@ -14,9 +14,25 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
+from pathlib import Path
 
 from common.bundled_configs import plain_help
 from common.character.humanoid import BodyGeometry, Humanoid, PhysicsConfig
+from common.config import ConfigError
+from common.errors import (
+    EXIT_NO_RENDERER,
+    EXIT_RUN_FAILED,
+    MAX_FRAMES,
+    CommandParser,
+    check_output_file,
+    exit_status,
+    fail,
+    non_negative_float,
+    one_line,
+    pixels,
+    positive_float,
+)
 from common.motion.dataset import load_motions, resolve_clips, save_dataset
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
@@ -40,8 +56,40 @@ def summary(library: MotionLibrary, sources_fps: dict[str, float], humanoid: Hum
     return "\n".join(lines)
 
 
+# Hz: the highest --control-hz. Every clip is resampled to this rate and kept in memory (a 30 s clip at 1 kHz: 30,000
+# frames of every body's state); 1e9 Hz asked for more memory than a machine has and was killed.
+MAX_CONTROL_HZ = 1000.0
+
+
+def _control_hz(text: str) -> float:
+    """``--control-hz``'s value: a rate in Hz, above 0 and at most :data:`MAX_CONTROL_HZ`."""
+    value = positive_float(text)
+    if value > MAX_CONTROL_HZ:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_CONTROL_HZ:g} Hz, got {text}")
+    return value
+
+
+def clip_option(library: MotionLibrary, name: str | None, option: str = "--clip") -> int:
+    """The index of the clip ``name`` (None: the first) among ``library``'s clips.
+
+    Raises:
+        CommandError: ``"--clip NAME: no such clip among the motions (walk, run)"``.
+    """
+    if name is None:
+        return 0
+    if name not in library.names:
+        fail(f"{option} {name}: no such clip among the motions ({', '.join(library.names)})")
+    return library.names.index(name)
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    """``mimic-motions``: bad input ends in one line and exit status 2 with nothing written; a write that fails (a
+    full disk) in one line and exit status 1, the previous file intact; no renderer: exit status 3."""
+    return exit_status(lambda: _main(argv), MotionFormatError, ConfigError)
+
+
+def _main(argv: list[str] | None) -> int:
+    parser = CommandParser(
         prog="mimic-motions", description=plain_help(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter
     )
     sub = parser.add_subparsers(dest="command", required=True)
@@ -59,11 +107,13 @@ def main(argv: list[str] | None = None) -> int:
     i.add_argument("source", help="a .bvh file, or any one clip as for summary (for the clean-up options alone)")
     i.add_argument("--out", required=True, help="output: DeepMimic .txt or motion dataset .h5 (written atomically)")
     i.add_argument("--map", default="cmu", help="joint map: a preset (cmu, humanoid3d) or a YAML file (default cmu)")
-    i.add_argument("--scale", type=float, help="metres per BVH unit (default: inferred from the skeleton's height)")
+    i.add_argument("--scale", type=positive_float,
+                   help="metres per BVH unit (default: inferred from the skeleton's height)")  # fmt: skip
     i.add_argument("--up", choices=("y", "z"), help="the BVH's up axis (default: the joint map's, y for cmu)")
     i.add_argument("--root", choices=("legs", "source"), default="legs",
                    help="root path scaled by leg length (default) or by --scale only")  # fmt: skip
-    i.add_argument("--trim", nargs=2, type=float, metavar=("START", "END"), help="keep START..END seconds")
+    i.add_argument("--trim", nargs=2, type=non_negative_float, metavar=("START", "END"),
+                   help="keep START..END seconds")  # fmt: skip
     i.add_argument("--mirror", action="store_true", help="left-right mirror (as DeepMimic's _mirror clips)")
     i.add_argument("--fix-ground", action="store_true", help="lift or lower the clip: feet on the floor in stance")
     i.add_argument("--loop", choices=("wrap", "none"), help="loop mode (default: the source's; BVH: none)")
@@ -72,68 +122,82 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("motions", nargs="+", help="as for summary")
     r.add_argument("--out", required=True, help="output .mp4 file")
     r.add_argument("--clip", help="which clip of the motions (default: the first)")
-    r.add_argument("--seconds", type=float, help="length (default: the clip; wrap clips one cycle)")
-    r.add_argument("--size", type=int, nargs=2, default=(480, 360), metavar=("W", "H"), help="pixels (480 360)")
+    r.add_argument("--seconds", type=positive_float,
+                   help=f"length (default: the clip; wrap clips one cycle); at most {MAX_FRAMES} frames")  # fmt: skip
+    r.add_argument("--size", type=pixels, nargs=2, default=(480, 360), metavar=("W", "H"), help="pixels (480 360)")
     for p in (s, c, i, r):
-        p.add_argument("--control-hz", type=float, default=60.0, help="control and reference rate in Hz (default 60)")
+        p.add_argument("--control-hz", type=_control_hz, default=60.0,
+                       help=f"control and reference rate in Hz (default 60, at most {MAX_CONTROL_HZ:g})")  # fmt: skip
     args = parser.parse_args(argv)
-
+    if args.command != "summary":
+        check_output_file(args.out)
     humanoid = Humanoid(PhysicsConfig(control_hz=args.control_hz))
-    try:
-        if args.command == "summary":
-            if any(m.endswith(".h5") for m in args.motions) and len(args.motions) == 1:
-                library = load_motions(args.motions, humanoid)
-                fps: dict[str, float] = {}
-            else:
-                clips = resolve_clips(args.motions)
-                fps = {cl.name: cl.source_fps for cl in clips}
-                library = MotionLibrary.from_clips(clips, humanoid)
-            print(summary(library, fps, humanoid))
-        elif args.command == "import":
-            from common.motion.motion_import.pipeline import ImportOptions, import_clip, write_clip
-            from common.motion.motion_import.retarget import RetargetOptions
+    if args.command == "summary":
+        if any(m.endswith(".h5") for m in args.motions) and len(args.motions) == 1:
+            library = load_motions(args.motions, humanoid)
+            fps: dict[str, float] = {}
+        else:
+            clips = resolve_clips(args.motions)
+            fps = {cl.name: cl.source_fps for cl in clips}
+            library = MotionLibrary.from_clips(clips, humanoid)
+        print(summary(library, fps, humanoid))
+    elif args.command == "import":
+        from common.motion.motion_import.pipeline import ImportOptions, import_clip, write_clip
+        from common.motion.motion_import.retarget import RetargetOptions
 
+        try:
             options = ImportOptions(
                 joint_map=args.map, retarget=RetargetOptions(scale=args.scale, up=args.up, root=args.root),
                 trim=tuple(args.trim) if args.trim else None, mirror=args.mirror, fix_ground=args.fix_ground,
                 loop=args.loop, name=args.name,
             )  # fmt: skip
             clip, notes = import_clip(args.source, humanoid, options)
-            write_clip(args.out, clip, humanoid)
-            print("\n".join(notes + [f"wrote {args.out}: {clip.num_keyframes} keyframes, {clip.duration:.3f} s"]))
-        elif args.command == "render":
-            return _render(args, humanoid)
-        else:
-            start = time.perf_counter()
-            library = load_motions(args.motions, humanoid)
-            save_dataset(args.out, library, humanoid)
-            print(
-                f"wrote {args.out}: {library.num_clips} clips, {library.num_frames.sum()} frames"
-                f" in {time.perf_counter() - start:.1f} s"
-            )
-    except (MotionFormatError, ValueError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+        except (ValueError, KeyError) as e:  # options the source cannot take (a trim beyond its end), a joint map's
+            fail(one_line(e))
+        _write(args.out, lambda: write_clip(args.out, clip, humanoid))
+        print("\n".join(notes + [f"wrote {args.out}: {clip.num_keyframes} keyframes, {clip.duration:.3f} s"]))
+    elif args.command == "render":
+        return _render(args, humanoid)
+    else:
+        started = time.perf_counter()
+        library = load_motions(args.motions, humanoid)
+        _write(args.out, lambda: save_dataset(args.out, library, humanoid))
+        print(f"wrote {args.out}: {library.num_clips} clips, {library.num_frames.sum()} frames"
+              f" in {time.perf_counter() - started:.1f} s")  # fmt: skip
     return 0
+
+
+def _write(out: str, write: Callable[[], None]) -> None:
+    """Runs ``write``; a failure of the disk (full, read-only) ends in one line, the previous ``out`` intact."""
+    try:
+        write()
+    except OSError as e:
+        fail(f"{out}: cannot write it: {e.strerror or one_line(e)}; nothing was changed", EXIT_RUN_FAILED)
 
 
 def _render(args: argparse.Namespace, humanoid: Humanoid) -> int:
     """Kinematic playback through the report's renderer (a child process with a working MuJoCo GL backend)."""
-    from pathlib import Path
-
     from common.motion.motion_import.pipeline import playback_qpos
     from common.tools import render
 
     library = load_motions(args.motions, humanoid)
-    clip = library.clip_index(args.clip) if args.clip else 0
+    clip = clip_option(library, args.clip)
+    # As playback_qpos counts them, checked before anything is allocated.
+    seconds = args.seconds if args.seconds is not None else float(library.duration[clip])
+    frames = int(round(seconds / library.dt)) + 1
+    if not library.loop[clip]:
+        frames = min(frames, int(library.num_frames[clip]))
+    if frames > MAX_FRAMES:
+        what = f"--seconds {args.seconds:g}" if args.seconds is not None else f"clip {library.names[clip]}"
+        fail(f"{what}: {frames} frames at {humanoid.physics.control_hz:g} Hz, more than {MAX_FRAMES}; render a "
+             "shorter stretch with --seconds")  # fmt: skip
     qpos = playback_qpos(library, clip, args.seconds)
     backend, why = render.find_backend()
     if backend is None:
-        print(f"error: {why}", file=sys.stderr)
-        return 3
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    render.video(qpos, None, humanoid, Path(args.out), backend, fps=humanoid.physics.control_hz,
-                 width=args.size[0], height=args.size[1])  # fmt: skip
+        fail(why, EXIT_NO_RENDERER)
+    _write(args.out, lambda: render.video(qpos, None, humanoid, Path(args.out), backend,
+                                          fps=humanoid.physics.control_hz, width=args.size[0],
+                                          height=args.size[1]))  # fmt: skip
     print(f"wrote {args.out}: {library.names[clip]}, {len(qpos)} frames at {humanoid.physics.control_hz:g} fps ({why})")
     return 0
 

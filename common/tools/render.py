@@ -8,7 +8,9 @@ at import, and a broken GL driver may abort the process: the report must survive
 
 from __future__ import annotations
 
+import errno
 import os
+import shutil
 import subprocess
 import sys
 from collections.abc import Iterable, Iterator
@@ -23,6 +25,7 @@ from common.sim.gym import GymConfig, TrackingGym
 
 BACKENDS = ("egl", "osmesa")
 _PROBE = "import mujoco; m = mujoco.MjModel.from_xml_string('<mujoco/>'); mujoco.Renderer(m, 8, 8).render()"
+_EXIT_WRITE_FAILED = 4  # the drawing child's status when it could not write its output (e.g. ENOSPC)
 GHOST_RGBA = (1.0, 0.6, 0.2, 0.35)  # the reference: orange and translucent, so the simulated body stays readable
 
 
@@ -141,6 +144,7 @@ def write_video(frames: Iterable[np.ndarray], out: Path, fps: float) -> int:
             raise ValueError(f"{out}: no frames to write")
         writer.close()
         writer = None
+        _check_video(tmp, out)
         os.replace(tmp, out)
     finally:
         if writer is not None:
@@ -149,19 +153,42 @@ def write_video(frames: Iterable[np.ndarray], out: Path, fps: float) -> int:
     return count
 
 
+def _check_video(path: Path, out: Path) -> None:
+    """Refuses a video ffmpeg could not finish (imageio-ffmpeg does not look at ffmpeg's exit status: on a full disk
+    it left an MP4 without its index), by reading its container back without decoding (milliseconds).
+
+    Raises:
+        OSError: ENOSPC naming ``out`` when the disk is (nearly) full, else EIO with ffmpeg's complaint.
+    """
+    import imageio_ffmpeg
+
+    proc = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-i", str(path), "-map", "0", "-c", "copy",
+                           "-f", "null", "-"], capture_output=True, text=True, timeout=600)  # fmt: skip
+    if proc.returncode == 0:
+        return
+    if shutil.disk_usage(path.parent).free < 1 << 20:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(out))
+    last = (proc.stderr.strip().splitlines() or [f"exit status {proc.returncode}"])[-1]
+    raise OSError(errno.EIO, f"ffmpeg could not finish the video ({last})", str(out))
+
+
 def _run_child(out: Path, backend: str, timeout_s: float, **data: object) -> None:
     """Runs ``python -m common.tools.render`` on ``data`` (saved beside ``out``) with MUJOCO_GL = ``backend``."""
     path_npz = out.with_suffix(".npz")
-    np.savez(path_npz, **data)
     # The child must import this package even when it is not installed (a source checkout run from elsewhere).
     root = str(Path(__file__).resolve().parents[2])
     path = os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH", "")) if p)
     env = {**os.environ, "MUJOCO_GL": backend, "PYTHONPATH": path}
     try:
+        with open(path_npz, "wb") as f:  # a file object: np.savez would add ".npz" to a name without it
+            np.savez(f, **data)
         proc = subprocess.run([sys.executable, "-m", "common.tools.render", str(path_npz), str(out)], env=env,
                               capture_output=True, text=True, timeout=timeout_s)  # fmt: skip
     finally:
         path_npz.unlink(missing_ok=True)
+    if proc.returncode == _EXIT_WRITE_FAILED:  # the child could not write ``out`` (a full disk): an OSError here too
+        code, _, strerror = proc.stderr.strip().splitlines()[-1].partition(" ")
+        raise OSError(int(code) if code.isdigit() else None, strerror, str(out))
     if proc.returncode != 0:
         raise RuntimeError(f"rendering failed: {proc.stderr.strip()[-500:]}")
 
@@ -224,4 +251,10 @@ def _draw(data_path: Path, out: Path) -> None:
 
 
 if __name__ == "__main__":
-    _draw(Path(sys.argv[1]), Path(sys.argv[2]))
+    try:
+        _draw(Path(sys.argv[1]), Path(sys.argv[2]))
+    except OSError as e:  # the parent raises it again: "<errno> <strerror>" on the last line
+        if e.errno is None:
+            raise
+        print(f"{e.errno} {e.strerror}", file=sys.stderr)
+        sys.exit(_EXIT_WRITE_FAILED)

@@ -2,10 +2,10 @@
 
 A learner's command is a :class:`TrainingCommand`: its name, config class, texts, and how to build its learner.
 :func:`train_main` does the rest the same way for every learner: parse the options, validate config and motions
-before anything is written (:func:`common.train.training.setup`), build the learner, resume if asked, train to the
+before anything is written (:func:`common.train.startup.prepare`), build the learner, resume if asked, train to the
 budget with a clean Ctrl-C (the first finishes the iteration, evaluates and checkpoints; the second aborts without
-saving), print the final table. An error a user can fix ends in one line (``error: ...``) and exit status 1 or 2;
-a bug keeps its traceback.
+saving), print the final table. An error a user can fix ends in one line (``error: ...``) and exit status 2 (bad
+input, nothing written) or 1 (a failure during the run); a bug keeps its traceback (:mod:`common.errors`).
 """
 
 from __future__ import annotations
@@ -21,10 +21,18 @@ from typing import Any
 import numpy as np
 
 from common.character.humanoid import Humanoid
+from common.config import ConfigError
+from common.errors import EXIT_RUN_FAILED, CommandParser, fail, one_line, one_line_errors, os_error_line
 from common.evaluation.evaluate import EvalResult
 from common.motion.library import MotionLibrary
+from common.motion.motion import MotionFormatError
+from common.run.checkpoint import CheckpointError
+from common.run.directory import RunDirError
 from common.sim.collect import CollectorError
-from common.train.training import Learner, Trainer, add_common_arguments, compat_meta, setup
+from common.train.startup import add_common_arguments, prepare, start
+from common.train.training import Learner, Trainer, compat_meta
+
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a process stopped by Ctrl-C
 
 COMMON_EPILOG = """\
 Every run writes RUN_DIR/config.yaml (the resolved config), run_info.json, metrics.jsonl and tb/ (losses/...,
@@ -51,8 +59,9 @@ class TrainingCommand:
         check: ``(cfg, humanoid, library, prepared)``: what only the model and motions can validate (ValueError
             naming the key), before the run directory is made.
         info: ``(prepared) -> dict`` added to run_info.json.
-        user_errors: Exceptions from building the learner that are the user's to fix (one line, exit 1). A
-            collector worker's failure during the run always ends in one line (its traceback in the message).
+        user_errors: Exceptions from building the learner that are the user's to fix (one line, exit 2; a
+            collector worker that fails to start: exit 1, its traceback on the lines after). A collector worker's
+            failure during the run always ends so.
     """
 
     name: str
@@ -72,8 +81,8 @@ class TrainingCommand:
         epilog = COMMON_EPILOG
         if self.examples:
             epilog += "\n\nexamples:\n" + "\n".join(f"  {e}" for e in self.examples)
-        parser = argparse.ArgumentParser(prog=self.prog, description=self.description, epilog=epilog,
-                                         formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+        parser = CommandParser(prog=self.prog, description=self.description, epilog=epilog,
+                               formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
         add_common_arguments(parser, self.name)
         if self.add_arguments is not None:
             self.add_arguments(parser)
@@ -94,7 +103,18 @@ class GracefulStop:
 
 
 def train_main(command: TrainingCommand, argv: Sequence[str] | None = None) -> EvalResult:
-    """Parses ``argv``, trains ``command``'s learner to its budget and returns the final evaluation."""
+    """Parses ``argv``, trains ``command``'s learner to its budget and returns the final evaluation.
+
+    Bad options or inputs end in one line and exit status 2 with nothing written (the run directory is created only
+    once the config, the motions, ``--out`` and the learner are accepted); a failure during the run (a full disk, a
+    NaN loss, a failed collector worker) ends in one line and exit status 1, the run directory keeping its last
+    checkpoint (:mod:`common.errors`).
+    """
+    with one_line_errors(ConfigError, MotionFormatError, CheckpointError, RunDirError):
+        return _train(command, argv)
+
+
+def _train(command: TrainingCommand, argv: Sequence[str] | None) -> EvalResult:
     args = command.parser().parse_args(argv)
     prepared = command.prepare(args) if command.prepare is not None else None
 
@@ -102,30 +122,39 @@ def train_main(command: TrainingCommand, argv: Sequence[str] | None = None) -> E
         if command.check is not None:
             command.check(cfg, humanoid, library, prepared)
 
-    info = command.info(prepared) if command.info is not None else None
-    cfg, run_dir, humanoid, library = setup(command.config_cls, args, command.name, check=check, info=info)
+    cfg, run_dir, humanoid, library = prepare(command.config_cls, args, command.name, check=check)
     rng = np.random.default_rng(cfg.train.seed)
     assert command.make_learner is not None, f"{command.prog}: no make_learner"
     try:
         learner = command.make_learner(cfg, humanoid, library, rng, prepared)
     except command.user_errors as e:
-        sys.exit(f"error: {e}")
+        if isinstance(e, CollectorError):  # its traceback stays on the lines after the first
+            fail(str(e), EXIT_RUN_FAILED)
+        fail(one_line(e))
     try:
+        start(cfg, run_dir, library, command.name, command.info(prepared) if command.info is not None else None)
         trainer = Trainer(learner, cfg.train, run_dir, library, humanoid, compat_meta(cfg, humanoid, command.name),
                           command.name, rng)  # fmt: skip
         if args.resume:
             try:
                 trainer.resume()
             except (ValueError, KeyError) as e:
-                sys.exit(f"error: cannot resume: {e}")
+                fail(f"cannot resume: {one_line(e)}")
         stop = GracefulStop()
         previous = signal.signal(signal.SIGINT, stop)
         try:
             result = trainer.run(stop=lambda: stop.requested)
         except FloatingPointError as e:
-            sys.exit(f"error: {e}\nthe run directory {run_dir.path} keeps its last good checkpoint")
-        except CollectorError as e:  # a collector worker failed (its traceback is in the message)
-            sys.exit(f"error: {e}\nthe run directory {run_dir.path} keeps its last checkpoint")
+            fail(f"{one_line(e)}; the run directory {run_dir.path} keeps its last good checkpoint", EXIT_RUN_FAILED)
+        except CollectorError as e:  # a collector worker failed: its traceback on the lines after the first
+            first, _, rest = str(e).partition("\n")
+            fail(f"{first}; the run directory {run_dir.path} keeps its last checkpoint" + (f"\n{rest}" if rest else ""),
+                 EXIT_RUN_FAILED)  # fmt: skip
+        except OSError as e:  # a full disk while logging: the checkpoints written so far stay
+            fail(f"run directory {run_dir.path}: cannot write {os_error_line(e)}; its checkpoints are intact "
+                 "(continue with --resume once it can be written)", EXIT_RUN_FAILED)  # fmt: skip
+        except KeyboardInterrupt:  # the second Ctrl-C
+            fail(f"interrupted; the run directory {run_dir.path} keeps its last checkpoint", EXIT_INTERRUPTED)
         finally:
             signal.signal(signal.SIGINT, previous)
     finally:

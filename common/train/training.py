@@ -1,8 +1,9 @@
-"""The training loop, command line and run directory shared by ``train-supertrack`` and ``train-ppo``.
+"""The training loop shared by ``train-supertrack`` and ``train-ppo``.
 
 A learner implements :class:`Learner` (collect frames from the gym into its buffer, one update, a deterministic
 policy, state dicts); :class:`Trainer` drives it: wall-clock/sample/iteration budgets, periodic evaluation with the
-shared evaluator, JSON-lines + TensorBoard metrics, atomic checkpoints and exact ``--resume``.
+shared evaluator, JSON-lines + TensorBoard metrics, atomic checkpoints and exact ``--resume``. The command line and
+the start of a run (validation, the run directory) are in :mod:`common.train.startup`.
 
 Log keys (shared by both learners so that the report reads either run): ``eval/...`` (the evaluator's metrics),
 ``losses/...``, ``reward/...``, ``world_model/...``, ``perf/...`` (samples/s, time shares), ``charts/...``.
@@ -10,28 +11,27 @@ Log keys (shared by both learners so that the report reads either run): ``eval/.
 
 from __future__ import annotations
 
-import argparse
 import copy
+import math
 import sys
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from datetime import datetime
-from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 import torch
 
-from common.bundled_configs import config_help, default_config
-from common.bundled_configs import resolve_config as find_config
 from common.character.humanoid import Humanoid
-from common.config import ConfigError, load_config, to_dict
+from common.config import to_dict
+from common.errors import (
+    EXIT_RUN_FAILED,
+    CommandError,
+    one_line,
+)
 from common.evaluation.evaluate import EvalConfig, EvalResult, Policy, evaluate
-from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
-from common.motion.motion import MotionFormatError
-from common.run.directory import RunDir, RunDirError, check_compatible, rng_state, set_rng_state
+from common.run.directory import RunDir, check_compatible, rng_state, set_rng_state
 from common.run.logs import MetricsLogger, Progress, Timers
 from common.sim.gym import GymConfig
 
@@ -80,6 +80,31 @@ class TrainConfig:
             raise ValueError("motions must name at least one clip")
         if self.max_minutes is None and self.max_samples is None and self.max_iterations is None:
             raise ValueError("set at least one of max_minutes, max_samples, max_iterations")
+        if not 0 <= self.seed < 2**32:
+            raise ValueError(f"seed must be an integer from 0 to 2**32 - 1, got {self.seed}")
+        check_device(self.device)
+        at_least = {"torch_threads": 1, "log_every": 1, "eval_every_iterations": 1, "keep_checkpoints": 1,
+                    "max_samples": 0, "max_iterations": 0}  # fmt: skip
+        for key, low in at_least.items():
+            value = getattr(self, key)
+            if value is not None and value < low:
+                raise ValueError(f"{key} must be >= {low}, got {value}")
+        for key in ("max_minutes", "eval_every_minutes", "checkpoint_every_minutes"):
+            value = getattr(self, key)
+            if value is not None and not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{key} must be a finite number of minutes >= 0, got {value}")
+
+
+def check_device(device: str) -> None:
+    """Refuses a string that names no torch device (``cpu``, ``cuda``, ``cuda:1``, ``mps``, ...).
+
+    Raises:
+        ValueError: Naming the device and the kinds torch knows.
+    """
+    try:
+        torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"device {device!r} is not a torch device (cpu, cuda, cuda:1, mps, ...)") from None
 
 
 class Learner(Protocol):
@@ -109,60 +134,6 @@ class Learner(Protocol):
 def gym_config(cfg: Any) -> GymConfig:
     """The gym section of a learner's config with its seed offset by ``train.seed`` (one seed drives a run)."""
     return replace(cfg.gym, seed=cfg.train.seed + cfg.gym.seed)
-
-
-def add_common_arguments(parser: argparse.ArgumentParser, command: str) -> None:
-    """The options both training commands share; ``command`` names the bundled config folder (``configs/<command>``)."""
-    parser.add_argument("--config", default=None,
-                        help=config_help(command) + " (with --resume: the run's own config.yaml, so that --out and "
-                             "--resume are enough to continue a run)")  # fmt: skip
-    parser.set_defaults(default_config=str(default_config(command)), config_command=command)
-    parser.add_argument("--motions", nargs="+", default=None,
-                        help="motions to track, overriding train.motions: bundled clip names (walk, run, ...), 'all', "
-                             "'long', DeepMimic .txt files, folders, or a motion dataset .h5")  # fmt: skip
-    parser.add_argument("--device", default=None, help="torch device for the networks, e.g. cpu or cuda (train.device)")
-    parser.add_argument("--out", default=None,
-                        help="run directory (default: runs/<learner>-<date>-<time>); must not hold a run unless "
-                             "--resume")  # fmt: skip
-    parser.add_argument(
-        "--resume",
-        action="store_true",
-        help="continue the run in --out from its latest checkpoint (same config and character)",
-    )
-    parser.add_argument(
-        "--max-minutes", type=float, default=None, help="training wall-clock budget in minutes (train.max_minutes)"
-    )
-    parser.add_argument("--max-iterations", type=int, default=None, help="iteration budget (train.max_iterations)")
-    parser.add_argument("--seed", type=int, default=None, help="random seed (train.seed)")
-    parser.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override any config value, e.g. --set gym.num_envs=128 (repeatable)",
-    )
-
-
-def resolve_config(cls: type, args: argparse.Namespace) -> Any:
-    """Loads the config file with ``--set`` overrides and the dedicated options applied.
-
-    Without ``--config`` it is the command's default, or with ``--resume`` the run's own ``config.yaml`` (the
-    resolved config it was started with); ``args.config`` is set to the file read, for messages."""
-    if args.config is None:
-        saved = Path(args.out) / "config.yaml" if args.resume and args.out else None
-        args.config = str(saved) if saved is not None and saved.is_file() else args.default_config
-    else:
-        args.config = str(find_config(args.config, args.config_command))
-    overrides = list(args.overrides)
-    if args.motions is not None:
-        overrides.append("train.motions=[" + ", ".join(repr(m) for m in args.motions) + "]")
-    for option, key in (("device", "train.device"), ("max_minutes", "train.max_minutes"),
-                        ("max_iterations", "train.max_iterations"), ("seed", "train.seed")):  # fmt: skip
-        value = getattr(args, option)
-        if value is not None:
-            overrides.append(f"{key}={value}")
-    return load_config(cls, args.config, overrides)
 
 
 def compat_meta(cfg: Any, humanoid: Humanoid, learner: str) -> dict[str, Any]:
@@ -217,7 +188,7 @@ class Trainer:
         try:
             self.learner.load_state_dict(state["learner"])
         except (KeyError, ValueError, RuntimeError) as e:  # a damaged or hand-edited checkpoint; the files stay
-            raise SystemExit(f"checkpoint {path}: cannot restore the learner: {e}") from e
+            raise CommandError(f"checkpoint {path}: cannot restore the learner: {one_line(e)}") from e
         set_rng_state(state["rng"], self.rng)
         self.iteration, self.samples = int(state["iteration"]), int(state["samples"])
         self.train_seconds = float(state["train_seconds"])
@@ -295,9 +266,9 @@ class Trainer:
         try:
             self.run_dir.save_checkpoint(self._state(), self.iteration)
         except OSError as e:  # a full disk or a lost mount: what is saved stays, the run cannot go on
-            raise SystemExit(f"error: cannot write the checkpoint of iteration {self.iteration} in "
-                             f"{self.run_dir.checkpoint_dir}: {e.strerror or e}; the checkpoints already there are "
-                             "intact (continue with --resume once it can be written)") from None  # fmt: skip
+            raise CommandError(f"cannot write the checkpoint of iteration {self.iteration} in "
+                               f"{self.run_dir.checkpoint_dir}: {e.strerror or e}; the checkpoints already there are "
+                               "intact (continue with --resume once it can be written)", EXIT_RUN_FAILED) from None
 
     def _evaluate(self) -> dict[str, float]:
         self.last_eval = self.evaluate()
@@ -319,41 +290,6 @@ class Trainer:
             or (t.max_samples is not None and self.samples >= t.max_samples)
             or (t.max_iterations is not None and self.iteration >= t.max_iterations)
         )
-
-
-def setup(
-    cls: type,
-    args: argparse.Namespace,
-    learner_name: str,
-    check: Callable[[Any, Humanoid, MotionLibrary], None] | None = None,
-    info: Mapping[str, Any] | None = None,
-) -> tuple[Any, RunDir, Humanoid, MotionLibrary]:
-    """Config, run directory, model and motions for a training command; exits with a clear message on bad input.
-
-    ``check(cfg, humanoid, library)`` validates what only the model and motions can (it raises ValueError naming the
-    key); it runs before the run directory is created, so a refused start leaves nothing behind. ``info`` is added
-    to run_info.json.
-    """
-    try:
-        cfg = resolve_config(cls, args)
-        humanoid = Humanoid(cfg.gym.physics)
-        library = load_motions(list(cfg.train.motions), humanoid)
-        if check is not None:
-            try:
-                check(cfg, humanoid, library)
-            except ValueError as e:
-                raise ConfigError(f"{args.config}: {e}") from e
-        out = args.out or f"runs/{learner_name}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
-        run_dir = RunDir(out, resume=args.resume, keep_checkpoints=cfg.train.keep_checkpoints)
-    except (ConfigError, RunDirError, MotionFormatError, FileNotFoundError) as e:
-        sys.exit(f"error: {e}")
-    torch.manual_seed(cfg.train.seed)
-    torch.set_num_threads(max(1, cfg.train.torch_threads))
-    if not args.resume:
-        run_dir.save_config(cfg)
-    run_dir.write_run_info({"learner": learner_name, "seed": cfg.train.seed, "motions": list(library.names),
-                            **(info or {})})  # fmt: skip
-    return cfg, run_dir, humanoid, library
 
 
 class NanGuard:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import pickle
@@ -193,3 +194,95 @@ def test_any_damage_to_a_checkpoint_reads_or_is_refused_naming_the_file(tmp_path
             seen.add(str(e).split(" (")[1].split(" ")[0] if " (" in str(e) else str(e))
     # Torch's own errors for these are of many types (RuntimeError, OSError, KeyError, IndexError, AssertionError...).
     assert len(seen) >= 4, seen
+
+
+class _DiskFull:
+    """A binary file on a disk that has ``room`` bytes left: the write that would pass it raises ENOSPC."""
+
+    def __init__(self, file: Any, room: int) -> None:
+        self.file, self.room = file, room
+
+    def write(self, data: Any) -> int:
+        size = memoryview(data).nbytes
+        if size > self.room:
+            self.file.write(memoryview(data).cast("B")[: self.room])  # what fitted stays in the file
+            self.room = 0
+            raise OSError(28, "No space left on device")
+        self.room -= size
+        return self.file.write(data)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.file, name)
+
+    def __enter__(self) -> _DiskFull:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.file.close()
+
+
+def _fill_disk_at(room: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """From now on, files opened for writing fill the disk after ``room`` bytes: torch's own writer (given a path)
+    fails as torch fails then, with its ``RuntimeError``, and Python's file objects raise ``OSError(ENOSPC)``."""
+    real_open, real_save = Path.open, torch.save
+
+    def open_(self: Path, mode: str = "r", *args: Any, **kwargs: Any) -> Any:
+        file = real_open(self, mode, *args, **kwargs)
+        return _DiskFull(file, room) if "w" in mode and "b" in mode else file
+
+    def save(obj: Any, f: Any, *args: Any, **kwargs: Any) -> None:
+        if not isinstance(f, (str, os.PathLike)):
+            return real_save(obj, f, *args, **kwargs)
+        with real_open(Path(f), "wb") as out:  # a full disk under torch's own writer: part of it, then torch's error
+            out.write(b"PK\x03\x04" + b"\0" * max(0, room - 4))
+        raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 768 vs 662")
+
+    monkeypatch.setattr(Path, "open", open_)
+    monkeypatch.setattr(torch, "save", save)
+
+
+def test_a_disk_that_fills_at_any_byte_leaves_the_previous_checkpoint_and_no_temporary_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    run = RunDir(tmp_path / "r", resume=False)
+    run.save_checkpoint(_state(1.0), iteration=1)
+    before = {p.name: p.read_bytes() for p in run.checkpoint_dir.iterdir()}
+    size = _file_object_size({**_state(2.0), "iteration": 2})
+    # Every 101st byte of the checkpoint, the first and the last: torch's RuntimeError, then the retry's ENOSPC.
+    for room in [0, 1, *range(2, size, 101), size - 1]:
+        with monkeypatch.context() as m:
+            _fill_disk_at(room, m)
+            with pytest.raises(OSError) as info:
+                run.save_checkpoint(_state(2.0), iteration=2)
+        assert (info.value.errno, info.value.filename) == (28, str(run.checkpoint_path(2))), room
+        assert {p.name: p.read_bytes() for p in run.checkpoint_dir.iterdir()} == before, room
+    assert read_checkpoint(run.path)[0] == run.checkpoint_path(1)
+
+
+def test_a_checkpoint_fits_on_a_disk_with_exactly_its_room(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The retry through a file object writes the same bytes: when they fit, the checkpoint is written after all."""
+    run = RunDir(tmp_path / "r", resume=False)
+    with monkeypatch.context() as m:
+        _fill_disk_at(_file_object_size({**_state(2.0), "iteration": 2}), m)
+        run.save_checkpoint(_state(2.0), iteration=2)
+    _, state, _ = load_newest_checkpoint(run.checkpoint_dir)
+    assert torch.equal(state["w"], torch.full((2, 3), 2.0)) and state["iteration"] == 2
+    assert sorted(p.name for p in run.checkpoint_dir.iterdir()) == ["ckpt_00000002.pt", "latest.json"]
+
+
+def _file_object_size(state: dict[str, Any]) -> int:
+    """Bytes of ``state`` saved by torch to a file object (its zip names its folder ``archive``, not the file's)."""
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    return len(buffer.getvalue())
+
+
+def test_torch_failing_for_another_reason_keeps_its_traceback(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def broken(obj: Any, f: Any, *args: Any, **kwargs: Any) -> None:
+        raise RuntimeError("a bug inside torch")
+
+    run = RunDir(tmp_path / "r", resume=False)
+    monkeypatch.setattr(torch, "save", broken)
+    with pytest.raises(RuntimeError, match="a bug inside torch"):
+        run.save_checkpoint(_state(2.0), iteration=2)
+    assert sorted(p.name for p in run.checkpoint_dir.iterdir()) == []

@@ -188,3 +188,27 @@ def test_load_run_checkpoint_returns_config_and_learner_and_names_what_is_missin
     torch.save({"w": torch.ones(2)}, other)
     with pytest.raises(ValueError, match=r"weights\.pt: no learner state"):
         load_run_checkpoint(_Cfg, run.path, other, "policy")
+
+
+def test_a_run_directory_is_checked_without_being_made_and_refused_where_it_cannot_be(tmp_path: Path) -> None:
+    run = RunDir(tmp_path / "a" / "run", resume=False, create=False)
+    assert not (tmp_path / "a").exists()
+    run.create()
+    assert run.checkpoint_dir.is_dir()
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(RunDirError, match=rf"run directory {tmp_path / 'file' / 'run'}: .*file is a file, not a dir"):
+        RunDir(tmp_path / "file" / "run", resume=False, create=False)
+    with pytest.raises(RunDirError, match=r"file: exists and is not a directory"):
+        RunDir(tmp_path / "file", resume=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "file"]
+
+
+def test_atomic_output_names_the_destination_when_the_disk_is_full(tmp_path: Path) -> None:
+    from common.config import atomic_output
+
+    (tmp_path / "x.json").write_text("old")
+    with pytest.raises(OSError) as info, atomic_output(tmp_path / "x.json") as tmp:
+        tmp.write_text("half")
+        raise OSError(28, "No space left on device", str(tmp))
+    assert (info.value.errno, info.value.filename) == (28, str(tmp_path / "x.json"))
+    assert [p.name for p in tmp_path.iterdir()] == ["x.json"] and (tmp_path / "x.json").read_text() == "old"

@@ -112,8 +112,8 @@ def test_bad_input_is_refused_in_one_line(args: list[str], message: str, tmp_pat
                                           capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     with pytest.raises(SystemExit) as exit_info:
         main(["--config", DEBUG, "--out", str(tmp_path / "run"), *args])
-    text = str(exit_info.value.code)
-    assert text.startswith("error: ") and message in text and "\n" not in text
+    text = str(exit_info.value)
+    assert text.startswith("error: ") and message in text and "\n" not in text and exit_info.value.code == 2
     assert not (tmp_path / "run").exists()
 
 
@@ -200,7 +200,7 @@ def test_phase_indexed_feedback_run_fits_and_stores_a_policy_per_segment_of_the_
 def test_phase_index_without_aligned_segments_is_refused(tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as exit_info:
         main(["--config", DEBUG, "--out", str(tmp_path / "run"), "--set", "feedback.index=phase"])
-    assert "needs search.align_cycle: true" in str(exit_info.value.code)
+    assert "needs search.align_cycle: true" in str(exit_info.value) and exit_info.value.code == 2
     assert not (tmp_path / "run").exists()
 
 
