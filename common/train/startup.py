@@ -6,6 +6,8 @@ directory, made only once all of it is accepted (:func:`prepare`, then :func:`st
 from __future__ import annotations
 
 import argparse
+import contextlib
+import shutil
 from collections.abc import Callable, Mapping
 from datetime import datetime
 from pathlib import Path
@@ -17,7 +19,7 @@ from common.bundled_configs import config_help, default_config
 from common.bundled_configs import resolve_config as find_config
 from common.character.humanoid import Humanoid
 from common.config import ConfigError, load_config
-from common.errors import CommandError, non_negative_float, non_negative_int, one_line, os_error_line
+from common.errors import EXIT_RUN_FAILED, CommandError, non_negative_float, non_negative_int, one_line, os_error_line
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
@@ -152,19 +154,39 @@ def start(cfg: Any, run_dir: RunDir, library: MotionLibrary, learner_name: str,
           info: Mapping[str, Any] | None = None) -> None:  # fmt: skip
     """Creates the run directory and writes ``config.yaml`` (a new run) and ``run_info.json`` (``info`` added).
 
+    If that fails, what it made of a new run is removed again, so that the same ``--out`` can be used once the
+    cause is fixed.
+
     Raises:
-        CommandError: If the directory or its files cannot be written (exit status 2: nothing ran yet).
+        CommandError: If the directory cannot be made (exit status 2) or its files cannot be written (a full disk:
+            exit status 1).
     """
+    # The highest folder this start makes (None: the run directory exists), removed again if the start fails.
+    made = next((p for p in reversed([run_dir.path, *run_dir.path.absolute().parents]) if not p.exists()), None)
     try:
         run_dir.create()
         if not run_dir.resume:
             run_dir.save_config(cfg)
         run_dir.write_run_info({"learner": learner_name, "seed": cfg.train.seed, "motions": list(library.names),
                                 **(info or {})})  # fmt: skip
-    except RunDirError as e:
-        raise CommandError(str(e)) from None
-    except OSError as e:
-        raise CommandError(f"run directory {run_dir.path}: cannot write {os_error_line(e)}") from None
+    except (RunDirError, OSError) as e:
+        if not run_dir.resume:
+            _undo_start(run_dir, made)
+        if isinstance(e, RunDirError):
+            raise CommandError(str(e)) from None
+        raise CommandError(f"run directory {run_dir.path}: cannot write {os_error_line(e)}", EXIT_RUN_FAILED) from None
+
+
+def _undo_start(run_dir: RunDir, made: Path | None) -> None:
+    """Removes what :func:`start` made of a new run: the folders it made, else (the run directory existed) its
+    ``checkpoints/`` (still empty) and ``config.yaml`` (a new run's folder had none)."""
+    if made is not None:
+        shutil.rmtree(made, ignore_errors=True)
+        return
+    with contextlib.suppress(OSError):
+        run_dir.checkpoint_dir.rmdir()
+    with contextlib.suppress(OSError):
+        run_dir.config_path.unlink(missing_ok=True)
 
 
 def setup(

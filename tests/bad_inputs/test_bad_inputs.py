@@ -309,3 +309,25 @@ def test_convert_on_a_disk_that_fills_at_any_byte_keeps_the_old_dataset(
         (line,) = capsys.readouterr().err.splitlines()
         assert line == f"error: {out}: cannot write it: No space left on device; nothing was changed"
         assert out.read_bytes() == good and sorted(p.name for p in tmp_path.iterdir()) == ["motions.h5"], room
+
+
+def test_a_run_that_cannot_write_its_first_files_leaves_nothing_so_the_same_out_works_after(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """A full disk before the first iteration (config.yaml cannot be written): exit status 1, one line, and the run
+    directory and the folders made for it removed again, or, in an empty folder that existed, what was made in it."""
+    from common.run.directory import RunDir
+
+    def disk_full(self: RunDir, cfg: Any) -> None:
+        raise OSError(28, "No space left on device", str(self.config_path))
+
+    (tmp_path / "empty").mkdir()
+    for out in (tmp_path / "new" / "run", tmp_path / "empty"):
+        with monkeypatch.context() as m:
+            m.setattr(RunDir, "save_config", disk_full)
+            with pytest.raises(SystemExit) as info:
+                train_ppo.main(["--config", PPO_CONFIG, "--out", str(out)])
+        assert info.value.code == 1
+        assert capsys.readouterr().err.splitlines()[-1] == (f"error: run directory {out}: cannot write "
+                                                            f"{out / 'config.yaml'}: No space left on device")
+        assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == ["empty"]
+    assert train_ppo.main(["--config", PPO_CONFIG, "--max-iterations", "1", "--out", str(tmp_path / "empty")]) == 0
