@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -27,12 +28,15 @@ from common.bundled_configs import plain_help
 from common.character.humanoid import Humanoid
 from common.config import ConfigError
 from common.errors import (
+    EXIT_RUN_FAILED,
     MAX_FRAMES,
     CommandParser,
     check_output_dir,
+    fail,
     frame_count,
     non_negative_int,
     one_line_errors,
+    os_error_line,
     positive_int,
 )
 from common.evaluation.evaluate import EvalConfig, EvalResult, Policy, evaluate
@@ -132,33 +136,41 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
         library = load_motions(specs, humanoid)
     except (MotionFormatError, FileNotFoundError, KeyError, ValueError) as e:
         raise ReportError(f"cannot load motions {specs}: {e}") from e
-    out.mkdir(parents=True, exist_ok=True)  # only now: a refused report leaves no folder behind
-    policies, results, pushed = [], [], []
-    for run in runs:
-        policy = export_module(run.learner).load_eval_policy(run.path, run.checkpoint, humanoid, library)
-        policies.append(policy)
-        results.append(evaluate(policy, library, humanoid, protocol))
-        if pushes:
-            pushed.append(evaluate(policy, library, humanoid, replace(protocol, pushes=PUSHES)))
-    report = Report(runs, results, protocol, specs, pushed, notes)
-    for run in runs:
-        module = export_module(run.learner)
-        if hasattr(module, "load_oracle"):
-            # A per-clip oracle (SAMCON): its open-loop trajectory, scored from each clip's start.
-            policy, minutes = module.load_oracle(run.path, run.checkpoint, humanoid, library)
-            report.oracles[run.label] = (evaluate(policy, library, humanoid, replace(protocol, starts_per_clip=1)),
-                                         minutes)  # fmt: skip
-    report.files["curves"] = figures.learning_curves(runs, out / "learning_curves.png")
-    wm = figures.world_model_curves(runs, out / "world_model.png")
-    if wm is not None:
-        report.files["world_model"] = wm
-    strips, videos = _pictures(report, policies, library, humanoid, out, render_clips if do_render else 0,
-                               video_clips if do_render else 0)  # fmt: skip
-    md = _markdown(report, strips, videos)
-    (out / "report.md").write_text(md, encoding="utf-8")
-    (out / "report.html").write_text(markdown_to_html(md, out, "Tracker comparison"), encoding="utf-8")
-    (out / "results.json").write_text(json.dumps(_results_json(report), indent=1) + "\n", encoding="utf-8")
-    report.files.update(markdown=out / "report.md", html=out / "report.html", results=out / "results.json")
+    # Made only now, so that a refused report leaves no folder behind; one that fails (a full disk) removes the
+    # folders it made.
+    made = next((p for p in reversed([out, *out.absolute().parents]) if not p.exists()), None)
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        policies, results, pushed = [], [], []
+        for run in runs:
+            policy = export_module(run.learner).load_eval_policy(run.path, run.checkpoint, humanoid, library)
+            policies.append(policy)
+            results.append(evaluate(policy, library, humanoid, protocol))
+            if pushes:
+                pushed.append(evaluate(policy, library, humanoid, replace(protocol, pushes=PUSHES)))
+        report = Report(runs, results, protocol, specs, pushed, notes)
+        for run in runs:
+            module = export_module(run.learner)
+            if hasattr(module, "load_oracle"):
+                # A per-clip oracle (SAMCON): its open-loop trajectory, scored from each clip's start.
+                policy, minutes = module.load_oracle(run.path, run.checkpoint, humanoid, library)
+                report.oracles[run.label] = (evaluate(policy, library, humanoid, replace(protocol, starts_per_clip=1)),
+                                             minutes)  # fmt: skip
+        report.files["curves"] = figures.learning_curves(runs, out / "learning_curves.png")
+        wm = figures.world_model_curves(runs, out / "world_model.png")
+        if wm is not None:
+            report.files["world_model"] = wm
+        strips, videos = _pictures(report, policies, library, humanoid, out, render_clips if do_render else 0,
+                                   video_clips if do_render else 0)  # fmt: skip
+        md = _markdown(report, strips, videos)
+        (out / "report.md").write_text(md, encoding="utf-8")
+        (out / "report.html").write_text(markdown_to_html(md, out, "Tracker comparison"), encoding="utf-8")
+        (out / "results.json").write_text(json.dumps(_results_json(report), indent=1) + "\n", encoding="utf-8")
+        report.files.update(markdown=out / "report.md", html=out / "report.html", results=out / "results.json")
+    except BaseException:
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+        raise
     return report
 
 
@@ -333,9 +345,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         args = build_parser().parse_args(argv)
         check_output_dir(args.out)
         torch.set_num_threads(args.threads)
-        report = build_report(args.runs, args.out, args.checkpoint, args.motions, args.starts, args.max_frames,
-                              args.render_clips, not args.no_render, not args.no_pushes,
-                              args.video_clips)  # fmt: skip
+        try:
+            report = build_report(args.runs, args.out, args.checkpoint, args.motions, args.starts, args.max_frames,
+                                  args.render_clips, not args.no_render, not args.no_pushes,
+                                  args.video_clips)  # fmt: skip
+        except OSError as e:  # a full disk while writing the report; the folders it made are removed again
+            fail(f"--out {args.out}: cannot write the report: {os_error_line(e)}", EXIT_RUN_FAILED)
     for label, result in zip((r.label for r in report.runs), report.results, strict=True):
         print(f"== {label}\n{result.table()}")
     for note in report.notes:
