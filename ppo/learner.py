@@ -281,6 +281,10 @@ class PPOLearner:
         sizes = {"obs": self.obs_size, "action": self.action_size, "num_envs": self.num_envs}
         if state.get("sizes") != sizes:
             raise ValueError(f"checkpoint is for sizes {state.get('sizes')}, this learner has {sizes}")
+        if "collector" not in state:
+            raise ValueError("the checkpoint was written before PPO collected through common/sim/collect (its gym "
+                             "state has another form): it cannot be resumed, but compare-trackers, watch-policy and "
+                             "export-policy still read its policy")  # fmt: skip
         if (state.get("amp") is None) != (self.amp is None):
             raise ValueError(f"checkpoint has AMP {'off' if state.get('amp') is None else 'on'}, this config has it "
                              f"{'off' if self.amp is None else 'on'}")  # fmt: skip

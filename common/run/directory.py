@@ -304,15 +304,19 @@ def load_run_checkpoint(config_cls: type, run_dir: str | Path, checkpoint: str |
     return cfg, dict(learner)
 
 
-def check_compatible(saved_meta: Mapping[str, Any], current_meta: Mapping[str, Any], path: str | Path) -> None:
+def check_compatible(saved_meta: Mapping[str, Any], current_meta: Mapping[str, Any], path: str | Path,
+                     defaults: Mapping[str, Any] | None = None) -> None:  # fmt: skip
     """Refuse to resume a checkpoint whose ``meta`` differs from the current run's.
 
-    Nested mappings are compared key by key (dotted keys); tuples and lists compare equal.
+    Nested mappings are compared key by key (dotted keys); tuples and lists compare equal. A key the checkpoint lacks
+    is accepted when the current run holds it at its value in ``defaults``: an option added to the code since the
+    checkpoint was written, left at its default, changes nothing the checkpoint's run did.
 
     Args:
         saved_meta: ``meta`` stored in the checkpoint.
         current_meta: ``meta`` the current run would store.
         path: Checkpoint path, for the message.
+        defaults: ``meta`` of the learner's default config (None: every missing key is a difference).
 
     Raises:
         ValueError: Listing every differing key with its saved and current value.
@@ -322,9 +326,11 @@ def check_compatible(saved_meta: Mapping[str, Any], current_meta: Mapping[str, A
                          f"learner is {current_meta.get('learner')!r}")  # fmt: skip
     saved, current = _flatten(saved_meta), _flatten(current_meta)
     missing = "<missing>"
+    added_at_default = {k for k, v in _flatten(defaults or {}).items()
+                        if k not in saved and current.get(k, missing) == v}  # fmt: skip
     lines = [
         f"  {key}: saved {saved.get(key, missing)!r}, current {current.get(key, missing)!r}"
-        for key in sorted(saved.keys() | current.keys())
+        for key in sorted((saved.keys() | current.keys()) - added_at_default)
         if saved.get(key, missing) != current.get(key, missing)
     ]
     if lines:

@@ -134,7 +134,7 @@ def _train(command: TrainingCommand, argv: Sequence[str] | None) -> EvalResult:
     try:
         start(cfg, run_dir, library, command.name, command.info(prepared) if command.info is not None else None)
         trainer = Trainer(learner, cfg.train, run_dir, library, humanoid, compat_meta(cfg, humanoid, command.name),
-                          command.name, rng)  # fmt: skip
+                          command.name, rng, compat_meta(command.config_cls(), humanoid, command.name))  # fmt: skip
         if args.resume:
             try:
                 trainer.resume()

@@ -157,10 +157,14 @@ class Trainer:
         meta: Config fingerprint stored in checkpoints and checked on resume.
         name: Label for the progress display.
         rng: The learner's numpy generator (saved and restored with the other RNGs).
+        default_meta: The fingerprint of the learner's default config: a checkpoint written before an option
+            existed resumes when the run holds that option at its default (see ``check_compatible``).
     """
 
     def __init__(self, learner: Learner, train: TrainConfig, run_dir: RunDir, library: MotionLibrary,
-                 humanoid: Humanoid, meta: dict[str, Any], name: str, rng: np.random.Generator) -> None:  # fmt: skip
+                 humanoid: Humanoid, meta: dict[str, Any], name: str, rng: np.random.Generator,
+                 default_meta: dict[str, Any] | None = None) -> None:  # fmt: skip
+        self.default_meta = default_meta
         self.learner, self.train, self.run_dir = learner, train, run_dir
         self.library, self.humanoid, self.meta, self.name, self.rng = library, humanoid, meta, name, rng
         self.iteration = 0
@@ -184,7 +188,7 @@ class Trainer:
                 one belongs to another config or learner.
         """
         path, state, passed_over = self.run_dir.load_latest_checkpoint(map_location="cpu", required=_STATE_KEYS)
-        check_compatible(state["meta"], self.meta, path)
+        check_compatible(state["meta"], self.meta, path, self.default_meta)
         try:
             self.learner.load_state_dict(state["learner"])
         except (KeyError, ValueError, RuntimeError) as e:  # a damaged or hand-edited checkpoint; the files stay

@@ -212,3 +212,17 @@ def test_atomic_output_names_the_destination_when_the_disk_is_full(tmp_path: Pat
         raise OSError(28, "No space left on device", str(tmp))
     assert (info.value.errno, info.value.filename) == (28, str(tmp_path / "x.json"))
     assert [p.name for p in tmp_path.iterdir()] == ["x.json"] and (tmp_path / "x.json").read_text() == "old"
+
+
+def test_an_option_added_since_the_checkpoint_is_accepted_only_at_its_default() -> None:
+    saved = {"learner": "ppo", "config": {"lr": 0.1}}
+    defaults = {"learner": "ppo", "config": {"lr": 0.5, "amp": {"weight": 0.0, "hidden": (256, 256)}}}
+    at_default = {"learner": "ppo", "config": {"lr": 0.1, "amp": {"weight": 0.0, "hidden": [256, 256]}}}
+    check_compatible(saved, at_default, "p", defaults)  # the new section at its defaults: the same run
+    changed = {"learner": "ppo", "config": {"lr": 0.1, "amp": {"weight": 0.3, "hidden": [256, 256]}}}
+    with pytest.raises(ValueError, match=r"\(1 differences\):\n  config.amp.weight: saved '<missing>', current 0.3$"):
+        check_compatible(saved, changed, "p", defaults)
+    with pytest.raises(ValueError, match="config.lr: saved 0.1, current 0.5"):  # a saved key is never excused
+        check_compatible(saved, {"learner": "ppo", "config": {"lr": 0.5}}, "p", defaults)
+    with pytest.raises(ValueError, match="2 differences"):  # without defaults every new key differs
+        check_compatible(saved, at_default, "p")
