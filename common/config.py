@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import io
 import os
 import re
 import tempfile
@@ -23,6 +24,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_hints
 
+import h5py
 import yaml
 
 T = TypeVar("T")
@@ -127,6 +129,19 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     finally:
         if tmp is not None:
             tmp.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def hdf5_output(path: str | Path) -> Iterator[h5py.File]:
+    """An HDF5 file built in memory, written to ``path`` in one plain write through :func:`atomic_output` once the
+    block succeeds. h5py writing straight to a file that fills up fails while freeing its objects and has been seen
+    to segfault; this way a full disk at any byte raises ``OSError`` naming ``path``, which keeps its previous
+    content, and leaves no temporary file. The file must fit in memory (clips, datasets, SAMCON plans do)."""
+    buffer = io.BytesIO()
+    with h5py.File(buffer, "w") as f:
+        yield f
+    with atomic_output(path) as tmp:
+        tmp.write_bytes(buffer.getbuffer())
 
 
 def load_config(cls: type[T], path: str | Path, overrides: Sequence[str] = ()) -> T:

@@ -17,12 +17,12 @@ file and renamed.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import h5py
 import numpy as np
 
+from common.config import hdf5_output
 from samcon.cost import FEATURE_NAMES
 from samcon.feedback import ClipPlan
 from samcon.lqr import LqrPath
@@ -40,36 +40,31 @@ _OPTIONAL = ("anchor_features", "anchor_offsets", "feature_scale", "ref_gain", "
 def save(path: str | Path, control_hz: float, results: list[tuple[Trajectory, ClipPlan]]) -> None:
     """Writes [(trajectory, its plan)] atomically."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs.update(format=FORMAT, version=VERSION, control_hz=control_hz)
-            f.attrs["features"] = np.array(FEATURE_NAMES, dtype="S")
-            for traj, plan in results:
-                g = f.create_group(f"clips/{traj.clip}")
-                for name in ("targets", "offsets", "bounds", "segment_cost", "start_state", "end_states"):
-                    g.create_dataset(name, data=getattr(traj, name))
-                for name, values in traj.segment_terms.items():
-                    g.create_dataset(f"terms/{name}", data=values)
-                if not np.array_equal(plan.bounds, traj.bounds):
-                    g.create_dataset("plan_bounds", data=plan.bounds)
-                for name in ("gain", "bias", *_OPTIONAL):
-                    if getattr(plan, name) is not None and (name != "ref_limit" or plan.ref_gain is not None):
-                        g.create_dataset(name, data=getattr(plan, name))
-                if plan.lqr:
-                    lqr = g.create_group("lqr")
-                    lqr.attrs["limit"] = plan.lqr_limit
-                    for j, lqr_path in enumerate(plan.lqr):
-                        p = lqr.create_group(str(j))
-                        p.attrs["first"] = lqr_path.first
-                        for name in _LQR:
-                            # A clip's only path needs no cost-to-go (nothing to choose between): left out.
-                            if name != "cost_to_go" or len(plan.lqr) > 1:
-                                p.create_dataset(name, data=getattr(lqr_path, name))
-                g.attrs.update(samples=traj.samples, seconds=traj.seconds, backtracks=traj.backtracks)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with hdf5_output(path) as f:
+        f.attrs.update(format=FORMAT, version=VERSION, control_hz=control_hz)
+        f.attrs["features"] = np.array(FEATURE_NAMES, dtype="S")
+        for traj, plan in results:
+            g = f.create_group(f"clips/{traj.clip}")
+            for name in ("targets", "offsets", "bounds", "segment_cost", "start_state", "end_states"):
+                g.create_dataset(name, data=getattr(traj, name))
+            for name, values in traj.segment_terms.items():
+                g.create_dataset(f"terms/{name}", data=values)
+            if not np.array_equal(plan.bounds, traj.bounds):
+                g.create_dataset("plan_bounds", data=plan.bounds)
+            for name in ("gain", "bias", *_OPTIONAL):
+                if getattr(plan, name) is not None and (name != "ref_limit" or plan.ref_gain is not None):
+                    g.create_dataset(name, data=getattr(plan, name))
+            if plan.lqr:
+                lqr = g.create_group("lqr")
+                lqr.attrs["limit"] = plan.lqr_limit
+                for j, lqr_path in enumerate(plan.lqr):
+                    p = lqr.create_group(str(j))
+                    p.attrs["first"] = lqr_path.first
+                    for name in _LQR:
+                        # A clip's only path needs no cost-to-go (nothing to choose between): left out.
+                        if name != "cost_to_go" or len(plan.lqr) > 1:
+                            p.create_dataset(name, data=getattr(lqr_path, name))
+            g.attrs.update(samples=traj.samples, seconds=traj.seconds, backtracks=traj.backtracks)
 
 
 def load_plans(path: str | Path, control_hz: float) -> tuple[dict[str, ClipPlan], dict[str, dict[str, float]]]:

@@ -7,7 +7,6 @@ a dataset built for another rate or character is refused rather than silently mi
 
 from __future__ import annotations
 
-import io
 import warnings
 from importlib import resources
 from pathlib import Path
@@ -17,7 +16,7 @@ import numpy as np
 
 from common.character.humanoid import Humanoid
 from common.character.state import FRAME_FIELDS, CharacterState
-from common.config import atomic_output
+from common.config import hdf5_output
 from common.motion import hdf5
 from common.motion.library import ClipFrames, MotionLibrary
 from common.motion.limits import (
@@ -120,8 +119,7 @@ def save_dataset(path: str | Path, library: MotionLibrary, humanoid: Humanoid) -
         OSError: If the file cannot be written; ``path`` keeps its previous content.
     """
     _check_library(library, humanoid, str(path))
-    buffer = io.BytesIO()
-    with h5py.File(buffer, "w") as f:
+    with hdf5_output(path) as f:
         f.attrs["format"] = DATASET_FORMAT
         f.attrs["version"] = DATASET_VERSION
         f.attrs["control_hz"] = humanoid.physics.control_hz
@@ -140,8 +138,6 @@ def save_dataset(path: str | Path, library: MotionLibrary, humanoid: Humanoid) -
             g.create_dataset("cycle_shift", data=clip.cycle_shift)
             for field in FRAME_FIELDS:
                 g.create_dataset(field, data=getattr(clip.frames, field), compression="gzip", compression_opts=1)
-    with atomic_output(path) as tmp:
-        tmp.write_bytes(buffer.getbuffer())
 
 
 def _check_library(library: MotionLibrary, humanoid: Humanoid, where: str) -> None:

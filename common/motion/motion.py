@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +20,7 @@ import h5py
 import numpy as np
 
 from common.character.humanoid import DEEPMIMIC_JOINTS
+from common.config import hdf5_output
 from common.maths.rotations import quat_fix_hemisphere, quat_from_axis_angle, quat_mul
 from common.motion import hdf5
 from common.motion.errors import MotionFormatError
@@ -256,23 +256,18 @@ def write_clip_pack(path: str | Path, sources: list[str | Path]) -> None:
         MotionFormatError: a source the reader refuses, as read or as stored; nothing is written.
     """
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
     if not sources:
         raise MotionFormatError(f"{path}: a clip pack needs at least one clip")
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = CLIP_PACK_FORMAT
-            f.attrs["version"] = CLIP_PACK_VERSION
-            for src in sources:
-                clip = read_deepmimic(src)
-                doc = json.loads(Path(src).read_text(encoding="utf-8"))
-                rows = np.asarray(doc["Frames"], dtype=np.float32)
-                frames_to_clip(rows.astype(np.float64), doc.get("Loop", "none"), clip.name, f"{src} (as float32)")
-                d = f.create_dataset(clip.name, data=rows, compression="gzip")
-                d.attrs["loop"] = doc.get("Loop", "none")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with hdf5_output(path) as f:
+        f.attrs["format"] = CLIP_PACK_FORMAT
+        f.attrs["version"] = CLIP_PACK_VERSION
+        for src in sources:
+            clip = read_deepmimic(src)
+            doc = json.loads(Path(src).read_text(encoding="utf-8"))
+            rows = np.asarray(doc["Frames"], dtype=np.float32)
+            frames_to_clip(rows.astype(np.float64), doc.get("Loop", "none"), clip.name, f"{src} (as float32)")
+            d = f.create_dataset(clip.name, data=rows, compression="gzip")
+            d.attrs["loop"] = doc.get("Loop", "none")
 
 
 def read_clip_pack(path: str | Path) -> list[Clip]:

@@ -286,3 +286,28 @@ def test_torch_failing_for_another_reason_keeps_its_traceback(tmp_path: Path, mo
     with pytest.raises(RuntimeError, match="a bug inside torch"):
         run.save_checkpoint(_state(2.0), iteration=2)
     assert sorted(p.name for p in run.checkpoint_dir.iterdir()) == []
+
+
+def test_hdf5_writers_on_a_disk_that_fills_keep_the_previous_file_and_leave_no_temporary_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A clip pack (the writer mimic-motions and the long clips use) built in memory by hdf5_output: a full disk at
+    the first, the last and every 1,001st byte raises OSError naming the file, which keeps its previous content."""
+    from common.motion.dataset import bundled_motion_dir, read_clip_pack
+    from common.motion.motion import write_clip_pack
+
+    sources = [bundled_motion_dir() / f"humanoid3d_{name}.txt" for name in ("walk", "jump")]
+    pack = tmp_path / "pack.h5"
+    write_clip_pack(pack, sources[:1])
+    before = pack.read_bytes()
+    write_clip_pack(tmp_path / "full.h5", sources)
+    size = (tmp_path / "full.h5").stat().st_size
+    for room in [0, *range(1, size, 1001), size - 1]:
+        with monkeypatch.context() as m:
+            _fill_disk_at(room, m)
+            with pytest.raises(OSError) as info:
+                write_clip_pack(pack, sources)
+        assert (info.value.errno, info.value.filename) == (28, str(pack)), room
+        assert pack.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["full.h5", "pack.h5"]
+    write_clip_pack(pack, sources)  # with room, the same call writes the file the readers accept
+    assert sorted(c.name for c in read_clip_pack(pack)) == ["jump", "walk"]
