@@ -78,6 +78,8 @@ def parse_yaml(text: str) -> Any:
         raise YAMLTextError(problem, getattr(e, "problem_mark", None)) from None
     except RecursionError:
         raise YAMLTextError("nested too deeply to read") from None
+    except ValueError as e:  # Python's limit on integer digits (a number of thousands of digits)
+        raise YAMLTextError(f"a value it cannot read: {str(e).split(';')[0]}") from None
 
 
 def yaml_problem(e: yaml.YAMLError) -> str:
@@ -174,6 +176,8 @@ BASE_KEY = "base"
 def _read_mapping(cls: type, path: Path, chain: tuple[Path, ...]) -> dict[str, Any]:
     """The top-level mapping of a config file with its ``base`` chain merged in (the base first)."""
     source = str(path)
+    if path.exists() and not path.is_file():  # a FIFO or a device would block or never end
+        raise ConfigError(f"{source}: not a regular file; a config is a YAML file")
     try:
         data = parse_yaml(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as e:

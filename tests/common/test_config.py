@@ -276,3 +276,14 @@ def test_atomic_output_gives_the_mode_open_would(tmp_path: Path) -> None:
         tmp.write_text("c")
         raise RuntimeError("writer failed")
     assert new.read_text() == "b" and sorted(p.name for p in tmp_path.iterdir()) == ["new.txt"]
+
+
+def test_a_number_of_thousands_of_digits_and_a_fifo_are_refused_in_one_line(tmp_path: Path) -> None:
+    big = tmp_path / "big.yaml"
+    big.write_text("seed: 1" + "0" * 5000 + "\n")
+    with pytest.raises(ConfigError, match=r"big.yaml: invalid YAML: a value it cannot read: .*5001 digits$"):
+        load_config(RunCfg, big)
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)  # reading it would block until a writer comes
+    with pytest.raises(ConfigError, match="fifo.yaml: not a regular file"):
+        load_config(RunCfg, fifo)
