@@ -59,8 +59,8 @@ def resolve_run(value: str | Path) -> Path:
     """The run directory ``value`` names: an existing path as given, else ``pretrained`` (the bundled general
     tracker) or ``pretrained:NAME`` (another bundled policy); anything else unchanged, for the caller's message."""
     text = str(value)
-    if Path(value).exists() or not (text == "pretrained" or text.startswith("pretrained:")):
-        return Path(value)
+    if (Path(value) / "run_info.json").is_file() or not (text == "pretrained" or text.startswith("pretrained:")):
+        return Path(value)  # a run directory of that name wins (the repository's own pretrained/ folder is none)
     return PRETRAINED_ROOT / (text.partition(":")[2] or DEFAULT_PRETRAINED)
 
 

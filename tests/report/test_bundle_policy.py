@@ -74,3 +74,16 @@ def test_bundling_refuses_a_samcon_run_an_existing_folder_and_a_tampered_file(tm
     policy.write_bytes(policy.read_bytes()[:-1] + bytes([policy.read_bytes()[-1] ^ 1]))  # one bit flipped
     with pytest.raises((ReportError, ValueError), match="policy.pt"):
         _judge(tmp_path / "b")
+
+
+def test_the_shipped_general_policy_loads_weights_only_and_tracks_walk_it_never_trained_on() -> None:
+    """pretrained/general: SuperTrack trained on the generalisation split's training clips (walk held out)."""
+    run = load_run("pretrained")
+    assert run.path == bundled.PRETRAINED_ROOT / "general" and run.learner == "supertrack"
+    assert "walk" not in run.motions and (run.path / "policy.pt").stat().st_size < 5e6
+    humanoid = Humanoid(run.physics())
+    library = load_motions(["walk"], humanoid)
+    # load_eval_policy reads the file with torch.load(weights_only=True) and checks its recorded SHA-256.
+    policy = export_module(run.learner).load_eval_policy(run.path, run.checkpoint, humanoid, library)
+    result = evaluate(policy, library, humanoid, EvalConfig(starts_per_clip=2, max_frames=300, threads=1))
+    assert result.overall["survival"] == 1.0 and result.overall["mpjpe_l"] < 60.0
