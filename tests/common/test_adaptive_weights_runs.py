@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from common.run.directory import read_checkpoint
 from ppo.train import main as ppo_main
 from supertrack.train import run as supertrack_run
+from tests.supertrack.test_train import _assert_same_tensors
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 # Episodes of 9 frames with the failure rules checked from the first: many episodes end (most truncated, some
@@ -30,17 +30,6 @@ def _ppo(out: Path, *extra: str) -> None:
     assert ppo_main(["--config", str(CONFIGS / "ppo" / "debug.yaml"), "--out", str(out), *ADAPTIVE, *extra]) == 0
 
 
-def _assert_same(a: object, b: object, where: str = "") -> None:
-    if isinstance(a, dict):
-        assert isinstance(b, dict) and a.keys() == b.keys(), where
-        for k in a:
-            _assert_same(a[k], b[k], f"{where}.{k}")
-    elif isinstance(a, torch.Tensor):
-        assert torch.equal(a, b), where
-    elif isinstance(a, np.ndarray):
-        np.testing.assert_array_equal(a, b, err_msg=where)
-
-
 @pytest.mark.parametrize("train", [_supertrack, _ppo], ids=["supertrack", "ppo"])
 def test_adaptive_weights_move_and_a_resumed_run_ends_where_the_straight_one_does(
         train: Callable[..., None], tmp_path: Path) -> None:  # fmt: skip
@@ -49,7 +38,7 @@ def test_adaptive_weights_move_and_a_resumed_run_ends_where_the_straight_one_doe
     train(tmp_path / "resumed", "--resume", "--max-iterations", "6")
     straight, resumed = (read_checkpoint(tmp_path / k)[1] for k in ("straight", "resumed"))
     assert straight["iteration"] == resumed["iteration"] == 6
-    _assert_same(straight["learner"], resumed["learner"])
+    _assert_same_tensors(straight["learner"], resumed["learner"])
     rates = straight["learner"]["motion_weights"]["failure_rate"]
     assert rates.shape == (3,) and rates.min() < 1.0  # episodes ended and moved the rates from the presumed 1.0
     gym = straight["learner"]["collector"]["sources"][0]["gym"]
