@@ -160,17 +160,27 @@ class AMP:
         self.normalizer = RunningNormalizer(np.ones(self.size, dtype=bool), normalizer_clip, normalizer_epsilon)
         self.replay = TransitionReplay(config.buffer_size, 2 * self.size)
         self.expert = ExpertSampler(library, features)
+        self.active = self._active_features(library, features, config.still_std)
         self.rng = np.random.default_rng([seed, AMP_SEED])
         self.nan_guard = NanGuard({"disc": self.disc, "optimizer": self.optimizer})
         self._rollout: np.ndarray | None = None
         self._expert: tuple[np.ndarray, np.ndarray] | None = None
 
+    @staticmethod
+    def _active_features(library: MotionLibrary, features: AMPFeatures, still_std: float) -> np.ndarray:
+        """1 for every feature that varies over the library's frames (std >= ``still_std``), 0 for the still ones.
+        Shape: (D,). A function of the library alone, so a resumed run rebuilds the same mask."""
+        clips = np.repeat(np.arange(library.num_clips), library.num_frames)
+        times = np.concatenate([np.arange(n) * library.dt for n in library.num_frames])
+        std = features(library.query(clips, times)).std(axis=0)
+        return (std >= still_std).astype(np.float64)
+
     def _tensor(self, x: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(x, dtype=torch.float32, device=self.device)
 
     def _normalized(self, states: np.ndarray) -> torch.Tensor:
-        """Normalised features (..., D) as a tensor; s and s' alike."""
-        return self._tensor(self.normalizer.normalize(states))
+        """Normalised features (..., D) as a tensor, the still ones zeroed (see ``amp.still_std``); s and s' alike."""
+        return self._tensor(self.normalizer.normalize(states) * self.active)
 
     def add_rollout(self, state: np.ndarray, next_state: np.ndarray) -> None:
         """Takes a rollout's policy transitions (M, D) each, and draws this iteration's expert transitions.

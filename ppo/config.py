@@ -201,6 +201,10 @@ class AMPConfig:
             grid times.
         updates_per_iteration: Discriminator Adam steps per iteration (after PPO's update of the iteration).
         end_effectors: Add the hands' and feet's positions in the root frame to the features.
+        still_std: Features whose standard deviation over every frame of the motion library is below this are zeroed
+            before the discriminator sees them: the reference holds them still, the simulation cannot, so they alone
+            would tell the two apart (walk's neck hinges: std < 0.001 rad/s in the clip, 0.5-0.7 rad/s simulated; see
+            ``benchmarks/amp_separability.py``). 0 keeps every feature.
     """
 
     weight: float = 0.0
@@ -223,8 +227,11 @@ class AMPConfig:
     expert_batch: int = 512
     updates_per_iteration: int = 20
     end_effectors: bool = True
+    still_std: float = 1e-3
 
     def __post_init__(self) -> None:
+        if not self.still_std >= 0.0:
+            raise ValueError(f"amp.still_std must be >= 0, got {self.still_std}")
         if not self.weight >= 0.0:
             raise ValueError(f"amp.weight must be >= 0 (0: off), got {self.weight}")
         if not self.hidden or min(self.hidden) < 1:

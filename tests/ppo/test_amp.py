@@ -289,7 +289,9 @@ def test_with_amp_on_gae_reads_the_task_reward_plus_weight_times_the_amp_reward(
     assert amp.normalizer.count == 64 + 2 * 32 and amp.replay.size == 64
     s, s_next = data["amp_obs"].reshape(64, -1), data["amp_next"].reshape(64, -1)
     with torch.no_grad():
-        raw = amp.disc(torch.as_tensor(amp.normalizer.normalize(s)), torch.as_tensor(amp.normalizer.normalize(s_next)))
+        # Normalised, the features the library holds still zeroed (amp.active), as float32 like the learner's.
+        norm = [torch.as_tensor(amp.normalizer.normalize(x) * amp.active, dtype=torch.float32) for x in (s, s_next)]
+        raw = amp.disc(*norm)
     expected = data["reward"].astype(np.float64) + 0.5 * amp_reward(raw, amp.config).double().numpy().reshape(8, 8)
     np.testing.assert_allclose(amp_on.rewards(data), expected, rtol=0, atol=1e-12)
     before = [p.detach().clone() for p in amp.disc.parameters()]
@@ -306,3 +308,26 @@ def test_with_amp_on_gae_reads_the_task_reward_plus_weight_times_the_amp_reward(
 def test_a_checkpoint_of_another_amp_setting_is_refused(amp_off: PPOLearner, amp_on: PPOLearner) -> None:
     with pytest.raises(ValueError, match="checkpoint has AMP on, this config has it off"):
         amp_off.load_state_dict(amp_on.state_dict())
+
+
+def test_features_the_library_holds_still_are_zeroed_for_the_discriminator(
+        humanoid: Humanoid, library: MotionLibrary) -> None:  # fmt: skip
+    """Walk's reference never moves the neck (benchmarks/amp_separability.py): its three hinge velocities are masked,
+    the root height is not, and with still_std 0 nothing is."""
+    from ppo.amp import AMP
+
+    features = AMPFeatures(humanoid)
+    names = list(features.named(library.query(np.array([0]), np.array([0.0]))).items())
+    start = {}
+    offset = 0
+    for name, value in names:
+        start[name] = offset
+        offset += value.shape[-1]
+    neck = [start["joint_vel"] + i for i in (3, 4, 5)]  # hinges 3-5: neck_x, neck_y, neck_z (actuator order)
+    amp = AMP(AMPConfig(weight=0.3), features, library, 5.0, 1e-2, torch.device("cpu"), seed=0)
+    assert amp.active[neck].tolist() == [0.0, 0.0, 0.0] and amp.active[start["root_height"]] == 1.0
+    moving = np.full((4, features.size), 3.0)
+    out = amp._normalized(moving).numpy()
+    assert np.all(out[:, neck] == 0.0) and np.all(out[:, start["root_height"]] != 0.0)
+    keep_all = AMP(AMPConfig(weight=0.3, still_std=0.0), features, library, 5.0, 1e-2, torch.device("cpu"), seed=0)
+    assert keep_all.active.min() == 1.0
