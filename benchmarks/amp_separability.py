@@ -6,6 +6,13 @@ reference's own standard deviation across time (about 1 or more: the group alone
 dimensions the reference holds still (std < 1e-3) while the simulation moves them: a discriminator separates those
 perfectly, whatever the policy learns.
 
+Then it trains a small discriminator (an MLP, 2 x 128 ELU, binary cross-entropy, the same for every input) on the
+policy's transitions [s, s'] against expert transitions drawn as training draws them (:class:`ppo.amp_data.
+ExpertSampler`: random clips and times), once per feature group alone and once on everything but that group, with the
+still features zeroed as ``amp.still_std`` zeroes them, and prints the held-out accuracy of each. A group whose
+"alone" accuracy is near 1 separates the two by itself; one whose removal drops the "all but" accuracy is what the
+discriminator leans on.
+
     python benchmarks/amp_separability.py runs/ppo-walk --motions walk --steps 300
 """
 
@@ -17,13 +24,14 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from common.character.humanoid import Humanoid  # noqa: E402
 from common.motion.dataset import load_motions  # noqa: E402
 from common.sim.gym import GymConfig, TrackingGym  # noqa: E402
-from ppo.amp_data import AMPFeatures  # noqa: E402
+from ppo.amp_data import AMPFeatures, ExpertSampler  # noqa: E402
 from report.runs import export_module, load_run  # noqa: E402
 
 STILL_STD = 1e-3
@@ -35,6 +43,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--motions", nargs="+", default=["walk"], help="clips to play (default: walk)")
     parser.add_argument("--steps", type=int, default=300, help="control steps played (default: 300)")
     parser.add_argument("--envs", type=int, default=16, help="characters (default: 16)")
+    parser.add_argument("--classifier-steps", type=int, default=400,
+                        help="Adam steps of each per-group discriminator; 0 skips them (default: 400)")  # fmt: skip
     args = parser.parse_args(argv)
     run = load_run(args.run)
     humanoid = Humanoid(run.physics())
@@ -45,8 +55,12 @@ def main(argv: list[str] | None = None) -> None:
     res = gym.reset()
     sim: dict[str, list[np.ndarray]] = {}
     ref: dict[str, list[np.ndarray]] = {}
+    now, nxt = [], []
     for _ in range(args.steps):
+        before = features(res.sim)
         res = gym.step(policy(res))
+        now.append(before)
+        nxt.append(features(res.final_sim))
         for store, state in ((sim, res.sim), (ref, res.ref)):
             for name, value in features.named(state).items():
                 store.setdefault(name, []).append(value.reshape(len(value), -1))
@@ -62,6 +76,65 @@ def main(argv: list[str] | None = None) -> None:
         if name == "joint_vel" and len(still):
             print("    hinges the reference holds still: " + ", ".join(
                 f"{actuators[i]} (sim std {s[:, i].std():.2f} rad/s)" for i in still))  # fmt: skip
+
+    if args.classifier_steps:
+        policy_rows = np.concatenate([np.concatenate(now), np.concatenate(nxt)], axis=-1)
+        expert = ExpertSampler(library, features).sample(len(policy_rows), np.random.default_rng(4))
+        expert_rows = np.concatenate(expert, axis=-1)
+        group_accuracies(features, library, policy_rows, expert_rows, args.classifier_steps)
+
+
+def group_accuracies(features: AMPFeatures, library, policy_rows: np.ndarray, expert_rows: np.ndarray,
+                     steps: int) -> None:  # fmt: skip
+    """Prints the held-out accuracy of a discriminator trained on each feature group alone and on all but it."""
+    d = features.size
+    every = np.concatenate(ExpertSampler(library, features).at(*_all_frames(library)))
+    active = every.std(0) >= STILL_STD
+    print(f"\ndiscriminators on [s, s'] ({len(policy_rows)} policy and as many expert transitions, a quarter held "
+          f"out; still features zeroed), held-out accuracy:")  # fmt: skip
+    print(f"{'group':14s} {'alone':>7s} {'all but it':>11s}")
+    groups = dict(features.layout)
+    print(f"{'(all)':14s} {_accuracy(policy_rows, expert_rows, np.tile(active, 2), steps):7.3f}")
+    for name, sl in groups.items():
+        alone = np.zeros(d, dtype=bool)
+        alone[sl] = True
+        a = _accuracy(policy_rows, expert_rows, np.tile(alone & active, 2), steps)
+        b = _accuracy(policy_rows, expert_rows, np.tile(~alone & active, 2), steps)
+        print(f"{name:14s} {a:7.3f} {b:11.3f}")
+
+
+def _all_frames(library) -> tuple[np.ndarray, np.ndarray]:
+    """Every (clip, time) of the library with a step to play after it."""
+    clips = np.concatenate([np.full(n - 1, c) for c, n in enumerate(library.num_frames)])
+    times = np.concatenate([np.arange(n - 1) * library.dt for n in library.num_frames])
+    return clips, times
+
+
+def _accuracy(policy_rows: np.ndarray, expert_rows: np.ndarray, keep: np.ndarray, steps: int) -> float:
+    """Held-out accuracy of a 2 x 128 ELU MLP trained with BCE on the kept columns (standardised on the training
+    part); 0.5 when no column is kept."""
+    if not keep.any():
+        return 0.5
+    x = np.concatenate([policy_rows, expert_rows])[:, keep].astype(np.float32)
+    y = np.concatenate([np.zeros(len(policy_rows)), np.ones(len(expert_rows))]).astype(np.float32)
+    order = np.random.default_rng(0).permutation(len(x))
+    train, test = order[: 3 * len(x) // 4], order[3 * len(x) // 4 :]
+    mean, std = x[train].mean(0), x[train].std(0) + 1e-6
+    x = torch.as_tensor((x - mean) / std)
+    y = torch.as_tensor(y)
+    torch.manual_seed(0)
+    net = torch.nn.Sequential(torch.nn.Linear(x.shape[1], 128), torch.nn.ELU(), torch.nn.Linear(128, 128),
+                              torch.nn.ELU(), torch.nn.Linear(128, 1))  # fmt: skip
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    gen = torch.Generator().manual_seed(1)
+    for _ in range(steps):
+        batch = torch.as_tensor(train)[torch.randint(len(train), (512,), generator=gen)]
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(net(x[batch]).squeeze(-1), y[batch])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        return float(((net(x[test]).squeeze(-1) > 0).float() == y[test]).float().mean())
 
 
 if __name__ == "__main__":

@@ -13,7 +13,9 @@ For a run directory's latest (or chosen) checkpoint:
 With ``--motions``, (1) is measured per clip instead, on fresh frames: the policy with its training noise
 (``policy.sigma``) plays each named clip in the simulator (reference state initialisation, the gym's rules), and W
 predicts each frame's successor from the frame and the applied targets. That is W's error on the distribution the
-policy makes on that clip, which the held-back buffer (all clips mixed, no clip stored) cannot separate:
+policy makes on that clip, which the held-back buffer (all clips mixed, no clip stored) cannot separate. A clip
+outside the run's library (a held-out clip of the generalisation split, an imported take) is loaded by name and
+marked ``*`` in the table: W's error there says whether the world model generalises where the policy must:
 
     .venv/bin/python benchmarks/world_model_bodies.py runs/st-all20 --motions walk backflip sideflip
 """
@@ -35,6 +37,7 @@ from common.character.humanoid import Humanoid  # noqa: E402
 from common.config import load_config  # noqa: E402
 from common.evaluation.evaluate import reference_policy  # noqa: E402
 from common.motion.dataset import load_motions  # noqa: E402
+from common.motion.errors import MotionFormatError  # noqa: E402
 from common.motion.library import MotionLibrary  # noqa: E402
 from common.run.checkpoint import CheckpointError  # noqa: E402
 from common.run.directory import read_checkpoint  # noqa: E402
@@ -54,8 +57,9 @@ def main() -> None:
     parser.add_argument("--windows", type=int, default=512, help="held-back windows for W's error")
     parser.add_argument("--frames", type=int, default=120, help="control steps of the policy in the simulator")
     parser.add_argument("--motions", nargs="+", default=None,
-                        help="clips of the run to measure W on one by one, on frames of the noisy policy (prints a "
-                             "body x clip table of W's angular-velocity error over the w=const guess's)")  # fmt: skip
+                        help="clips to measure W on one by one (the run's or any other bundled clip or file), on "
+                             "frames of the noisy policy (prints a body x clip table of W's angular-velocity error "
+                             "over the w=const guess's)")  # fmt: skip
     args = parser.parse_args()
     run = Path(args.run_dir)
     if not (run / "config.yaml").is_file():
@@ -157,14 +161,16 @@ def per_clip(cfg: SuperTrackConfig, learner: SuperTrackLearner, humanoid: Humano
              clips: list[str], frames: int) -> None:  # fmt: skip
     """Prints W's one-frame angular-velocity error over the w=const guess's, per body and clip, on frames of the
     noisy policy playing each clip (a frame whose step ended the episode has no successor and is left out)."""
-    unknown = [c for c in clips if c not in library.names]
-    if unknown:
-        raise SystemExit(f"--motions: {', '.join(unknown)} not among the run's clips ({', '.join(library.names)})")
+    held_out = [c for c in clips if c not in library.names]
+    try:  # before any work, so that a wrong name fails at once with the loader's message
+        other = {c: load_motions([c], humanoid) for c in held_out}
+    except MotionFormatError as e:
+        raise SystemExit(f"--motions: {e}") from e
     actor = GymActor(humanoid, copy.deepcopy(learner.eval_actor.policy), cfg.policy.alpha, cfg.policy.sigma)
     rng = np.random.default_rng(2)
     table, summary = {}, []
     for clip in clips:
-        one = MotionLibrary([library.clips[library.clip_index(clip)]], library.dt)
+        one = other[clip] if clip in other else MotionLibrary([library.clips[library.clip_index(clip)]], library.dt)
         gym = TrackingGym(gym_config(cfg), one, humanoid)
         try:
             res = gym.reset()
@@ -186,13 +192,16 @@ def per_clip(cfg: SuperTrackConfig, learner: SuperTrackLearner, humanoid: Humano
         summary.append((clip, len(sims), w_ang.mean(), base_ang.mean(), w_vel.mean(), base_vel.mean()))
     print(f"W's one-frame angular-velocity error / the w=const guess's, per body, on {frames} frames x "
           f"{cfg.gym.num_envs} characters of the noisy policy (sigma {cfg.policy.sigma}) per clip; > 1: W is worse")
-    width = max(9, *(len(c) + 1 for c in clips))
-    print(f"{'body':<18}" + "".join(f"{c:>{width}}" for c in clips))
+    labels = {c: c + "*" if c in held_out else c for c in clips}
+    width = max(9, *(len(c) + 2 for c in clips))
+    print(f"{'body':<18}" + "".join(f"{labels[c]:>{width}}" for c in clips))
     for i, name in enumerate(humanoid.body_names):
         print(f"{name:<18}" + "".join(f"{table[c][i]:>{width}.2f}" for c in clips))
     print(f"\n{'clip':<16}{'frames':>8}{'W angvel':>10}{'w=const':>9}{'W vel':>8}{'v=const':>9}   (means over bodies)")
     for clip, n, wa, ba, wv, bv in summary:
-        print(f"{clip:<16}{n:>8}{wa:>10.3f}{ba:>9.3f}{wv:>8.3f}{bv:>9.3f}")
+        print(f"{labels[clip]:<16}{n:>8}{wa:>10.3f}{ba:>9.3f}{wv:>8.3f}{bv:>9.3f}")
+    if held_out:
+        print("* not among the run's training clips")
 
 
 if __name__ == "__main__":

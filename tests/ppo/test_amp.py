@@ -331,3 +331,17 @@ def test_features_the_library_holds_still_are_zeroed_for_the_discriminator(
     assert np.all(out[:, neck] == 0.0) and np.all(out[:, start["root_height"]] != 0.0)
     keep_all = AMP(AMPConfig(weight=0.3, still_std=0.0), features, library, 5.0, 1e-2, torch.device("cpu"), seed=0)
     assert keep_all.active.min() == 1.0
+
+
+def test_the_separability_classifier_tells_apart_only_what_differs() -> None:
+    """benchmarks/amp_separability.py's per-group discriminator: near 1 on a column that differs between the two
+    sides, near 0.5 on columns drawn from one distribution, 0.5 with no column kept."""
+    from tests.benchmark_module import benchmark_module
+
+    bench = benchmark_module("amp_separability")
+    rng = np.random.default_rng(0)
+    policy, expert = rng.normal(size=(2, 800, 4)).astype(np.float32)
+    expert[:, 0] += 4.0  # column 0 separates the sides; columns 1-3 are the same distribution
+    assert bench._accuracy(policy, expert, np.array([True, False, False, False]), steps=200) > 0.95
+    assert abs(bench._accuracy(policy, expert, np.array([False, True, True, True]), steps=200) - 0.5) < 0.1
+    assert bench._accuracy(policy, expert, np.zeros(4, dtype=bool), steps=200) == 0.5

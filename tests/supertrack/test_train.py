@@ -335,8 +335,13 @@ def test_world_model_bodies_per_clip_errors(runs: dict[str, Path], capsys: pytes
         np.testing.assert_allclose(base_vel, np.linalg.norm(sim[..., 7:10] - nxt[..., 7:10], axis=-1).mean(0), 1e-6)
         np.testing.assert_allclose(base_ang, np.linalg.norm(sim[..., 10:13] - nxt[..., 10:13], axis=-1).mean(0), 1e-6)
         assert w_vel.shape == w_ang.shape == (n,) and np.all(w_ang > 0)
-        bench.per_clip(cfg, learner, humanoid, library, ["walk"], frames=3)
+        bench.per_clip(cfg, learner, humanoid, library, ["walk", "jog"], frames=3)
+        with pytest.raises(SystemExit, match="no_such_clip"):
+            bench.per_clip(cfg, learner, humanoid, library, ["walk", "no_such_clip"], frames=3)
     finally:
         learner.close()
     out = capsys.readouterr().out
-    assert all(name in out for name in humanoid.body_names) and "walk" in out
+    assert all(name in out for name in humanoid.body_names)
+    header = next(line for line in out.splitlines() if line.startswith("body"))
+    assert header.split()[1:] == ["walk", "jog*"]  # jog is not among the run's clips: measured, and marked
+    assert "* not among the run's training clips" in out
