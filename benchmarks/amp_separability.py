@@ -55,12 +55,13 @@ def main(argv: list[str] | None = None) -> None:
     res = gym.reset()
     sim: dict[str, list[np.ndarray]] = {}
     ref: dict[str, list[np.ndarray]] = {}
-    now, nxt = [], []
+    now, nxt, ref_now, ref_nxt = [], [], [], []
     for _ in range(args.steps):
-        before = features(res.sim)
+        now.append(features(res.sim))
+        ref_now.append(features(res.ref))
         res = gym.step(policy(res))
-        now.append(before)
         nxt.append(features(res.final_sim))
+        ref_nxt.append(features(res.final_ref))
         for store, state in ((sim, res.sim), (ref, res.ref)):
             for name, value in features.named(state).items():
                 store.setdefault(name, []).append(value.reshape(len(value), -1))
@@ -81,17 +82,22 @@ def main(argv: list[str] | None = None) -> None:
         policy_rows = np.concatenate([np.concatenate(now), np.concatenate(nxt)], axis=-1)
         expert = ExpertSampler(library, features).sample(len(policy_rows), np.random.default_rng(4))
         expert_rows = np.concatenate(expert, axis=-1)
-        group_accuracies(features, library, policy_rows, expert_rows, args.classifier_steps)
+        control_rows = np.concatenate([np.concatenate(ref_now), np.concatenate(ref_nxt)], axis=-1)
+        group_accuracies(features, library, policy_rows, expert_rows, control_rows, args.classifier_steps)
 
 
 def group_accuracies(features: AMPFeatures, library, policy_rows: np.ndarray, expert_rows: np.ndarray,
-                     steps: int) -> None:  # fmt: skip
-    """Prints the held-out accuracy of a discriminator trained on each feature group alone and on all but it."""
+                     control_rows: np.ndarray, steps: int) -> None:  # fmt: skip
+    """Prints the held-out accuracy of a discriminator trained on each feature group alone and on all but it, after a
+    control: the same discriminator on the reference at the policy's own clip times against the expert sampler's
+    transitions, which must stay near 0.5 (both are the reference; only their clip times' distribution differs)."""
     d = features.size
     every = np.concatenate(ExpertSampler(library, features).at(*_all_frames(library)))
     active = every.std(0) >= STILL_STD
     print(f"\ndiscriminators on [s, s'] ({len(policy_rows)} policy and as many expert transitions, a quarter held "
           f"out; still features zeroed), held-out accuracy:")  # fmt: skip
+    control = _accuracy(control_rows, expert_rows, np.tile(active, 2), steps)
+    print(f"control, the reference at the policy's clip times against the expert's draws: {control:.3f}")
     print(f"{'group':14s} {'alone':>7s} {'all but it':>11s}")
     groups = dict(features.layout)
     print(f"{'(all)':14s} {_accuracy(policy_rows, expert_rows, np.tile(active, 2), steps):7.3f}")
