@@ -266,6 +266,10 @@ def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]],
         lines += ["### Spread per clip", "", tables.per_clip_spread_table(report.runs, report.results) or "", ""]
     lines += ["## Samples and wall-clock to reach thresholds (first logged evaluation)", "",
               tables.threshold_table(report.runs), ""]  # fmt: skip
+    parity = tables.parity_table(report.runs)
+    if parity:
+        lines += ["## Samples and wall-clock to reach the other method's final MPJPE-g (logged evaluations)", "",
+                  parity, ""]  # fmt: skip
     wm = tables.world_model_table(report.runs)
     lines += ["## World-model diagnostics (SuperTrack)", ""]
     if wm:

@@ -118,6 +118,47 @@ def threshold_table(runs: list[Run]) -> str:
     return table(["run", *(t.label for t in THRESHOLDS)], rows)
 
 
+def parity_table(runs: list[Run], key: str = "eval/mpjpe_g") -> str | None:
+    """What one method needs to reach another's final figure, for every ordered pair of methods (A, B).
+
+    B's final figure: the mean over B's runs of their last logged ``key`` (MPJPE-g; lower is better). Per run of A
+    (by seed): the samples and training wall-clock at A's first logged evaluation at or below it, and their ratios to
+    B's mean samples and wall-clock at B's last evaluation; "never" where A's curve does not reach it. None with fewer
+    than two methods."""
+    groups = method_groups(runs)
+    if len(groups) < 2:
+        return None
+    finals: dict[str, tuple[float, float, float]] = {}  # method: (value, samples, seconds), means over its runs
+    for name, idx in groups.items():
+        ends = []
+        for i in idx:
+            samples, seconds, values = runs[i].curve(key)
+            if values:
+                ends.append((values[-1], samples[-1], seconds[-1]))
+        if ends:
+            value, samples_end, seconds_end = (float(np.mean(col)) for col in zip(*ends, strict=True))
+            finals[name] = (value, samples_end, seconds_end)
+    rows = []
+    for a, idx in groups.items():
+        for b, (target, b_samples, b_seconds) in finals.items():
+            if a == b:
+                continue
+            cells = []
+            for i in idx:
+                samples, seconds, values = runs[i].curve(key)
+                hit = next((j for j, v in enumerate(values) if v <= target), None)
+                seed = runs[i].seed
+                where = f"seed {seed}" if seed is not None else runs[i].label
+                if hit is None:
+                    cells.append(f"{where}: never")
+                else:
+                    cells.append(f"{where}: {samples[hit]:,} samples ({samples[hit] / b_samples:.2f}x), "
+                                 f"{_duration(seconds[hit])} ({seconds[hit] / b_seconds:.2f}x)")  # fmt: skip
+            rows.append([a, f"{b}: {target:.1f}", "; ".join(cells)])
+    return table(["method", "reaches the final MPJPE-g (mm) of", "first evaluation at or below it, per seed "
+                  "(ratio to the other's samples and minutes at its end)"], rows)  # fmt: skip
+
+
 def world_model_table(runs: list[Run]) -> str | None:
     """Last logged held-out world-model position error per horizon; None when no run logged one."""
     rows = []

@@ -89,7 +89,8 @@ def test_best_per_row_is_marked(report: Report) -> None:
 def test_report_files_and_sections(report: Report) -> None:
     md = report.files["markdown"].read_text()
     for section in ("Learning curves", "Samples and wall-clock to reach thresholds", "World-model diagnostics",
-                    "Filmstrips", "Runs: machine, versions, seeds", "Configs"):  # fmt: skip
+                    "Filmstrips", "Runs: machine, versions, seeds", "Configs",
+                    "Samples and wall-clock to reach the other method's final MPJPE-g"):  # fmt: skip
         assert section in md
     assert "switched off with --no-render" in md
     # World-model errors come from SuperTrack's log, at every horizon it logged.

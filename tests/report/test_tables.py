@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 
-from report.tables import clip_summary_table, metric_tables
+from report.runs import Run
+from report.tables import clip_summary_table, metric_tables, parity_table
 
 
 def _result(survival: list[float], mpjpe_g: list[float], mpjpe_l: list[float]) -> SimpleNamespace:
@@ -48,3 +50,30 @@ def test_oracle_table_takes_each_clips_oracle_and_marks_clips_a_samcon_run_did_n
     rows = [[c.strip() for c in line.strip("|").split("|")] for line in md.splitlines()[2:]]
     assert rows[0] == ["walk", "samcon:w", "45 / 30", "no", "5.0", "61 / 18", "2481 / 337"]
     assert rows[1] == ["run", "not tracked", "", "", "", "2874 / 164", "not tracked"]
+
+
+def _run(learner: str, seed: int, curve: list[tuple[int, float, float]]) -> Run:
+    """A run whose log holds evaluations (samples, wall-clock s, MPJPE-g) and nothing else."""
+    metrics = [{"samples": n, "wall_clock_s": t, "eval/mpjpe_g": v} for n, t, v in curve]
+    return Run(path=Path(f"/runs/{learner}-{seed}"), label=f"{learner}:{learner}-{seed}", learner=learner,
+               config={"train": {"seed": seed}}, info={"seed": seed}, metrics=metrics, checkpoint=Path("c.pt"),
+               iteration=1, samples=curve[-1][0], train_seconds=curve[-1][1])  # fmt: skip
+
+
+def test_parity_table_by_hand() -> None:
+    """B ends at 60 and 80 mm (mean 70) with 1,000 / 3,000 samples (mean 2,000) at 100 / 300 s (mean 200): A's seed 0
+    first reaches <= 70 at its second evaluation (400 samples, 40 s: 0.20x, 0.20x), seed 1 never; B reaches A's
+    final mean (50 and 500: 275) at its first evaluation in both seeds."""
+    runs = [_run("supertrack", 0, [(100, 10.0, 900.0), (400, 40.0, 70.0), (800, 80.0, 50.0)]),
+            _run("supertrack", 1, [(100, 10.0, 900.0), (800, 80.0, 500.0)]),
+            _run("ppo", 0, [(500, 50.0, 120.0), (1000, 100.0, 60.0)]),
+            _run("ppo", 1, [(1500, 150.0, 200.0), (3000, 300.0, 80.0)])]  # fmt: skip
+    md = parity_table(runs)
+    rows = {line.split(" | ")[0].strip("| "): line for line in md.splitlines()[2:]}
+    assert "ppo: 70.0" in rows["supertrack"]
+    assert "seed 0: 400 samples (0.20x), 40.0 s (0.20x)" in rows["supertrack"] and "seed 1: never" in rows["supertrack"]
+    assert "supertrack: 275.0" in rows["ppo"]
+    # ppo's first evaluations (120, 200 mm) are at or below 275: 500 samples of supertrack's mean 800 (0.62x)
+    assert "seed 0: 500 samples (0.62x), 50.0 s (0.62x)" in rows["ppo"]
+    assert "seed 1: 1,500 samples (1.88x), 2.5 min (1.88x)" in rows["ppo"]  # 150 s
+    assert parity_table(runs[:2]) is None  # one method: nothing to compare
