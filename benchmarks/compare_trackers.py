@@ -93,7 +93,23 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-render", action="store_true", help="skip the filmstrips and videos")
     parser.add_argument("--no-pushes", action="store_true", help="skip the robustness re-evaluation")
     parser.add_argument("--train-only", action="store_true", help="train (or reuse) the runs, build no report")
+    parser.add_argument("--oracle", action="append", default=[], metavar="SAMCON_RUN_DIR",
+                        help="a track-samcon run directory whose open-loop paths join the report as the oracle row "
+                             "(repeatable; checked before any training starts)")  # fmt: skip
     return parser
+
+
+def check_oracles(dirs: list[str]) -> None:
+    """Refuses, before anything trains, an --oracle that is not a finished track-samcon run directory."""
+    from report.runs import ReportError, load_run
+
+    for d in dirs:
+        try:
+            run = load_run(d)
+        except ReportError as e:
+            raise SystemExit(f"error: --oracle {d}: {e}") from e
+        if run.learner != "samcon":
+            raise SystemExit(f"error: --oracle {d}: a {run.learner} run, not a track-samcon run")
 
 
 def suite_motions(args: argparse.Namespace) -> list[str]:
@@ -207,13 +223,15 @@ def main(argv: list[str] | None = None) -> int:
     if args.seeds < 1 or args.parallel < 1 or args.minutes <= 0:
         raise SystemExit("error: --seeds and --parallel must be >= 1 and --minutes > 0")
     out = Path(args.out)
+    check_oracles(args.oracle)
     todo = train_all(args, out)
     if args.train_only:
         return 0
     options = [] if args.starts is None else ["--starts", str(args.starts)]
     options += ["--no-render"] * args.no_render + ["--no-pushes"] * args.no_pushes
     for folder, motions in judged_motions(args):
-        compare_main([*(str(j.out) for j in todo), "--out", str(out / folder), "--motions", *motions, *options])
+        compare_main([*(str(j.out) for j in todo), *args.oracle, "--out", str(out / folder), "--motions", *motions,
+                      *options])  # fmt: skip
     return 0
 
 

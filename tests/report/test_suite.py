@@ -141,3 +141,33 @@ def test_the_generalisation_split_is_fixed_disjoint_and_covers_the_library() -> 
     assert m.judged_motions(args) == [("report", m.SPLIT_TEST), ("report-train", m.SPLIT_TRAIN)]
     walk = m.build_parser().parse_args(["--suite", "walk", "--out", "x"])
     assert m.judged_motions(walk) == [("report", ["walk"])]
+
+
+def test_an_oracle_is_checked_before_training_and_joins_every_report(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """--oracle: a missing or non-SAMCON run directory stops the suite before any run starts; a SAMCON one is handed
+    to compare-trackers with the suite's runs, for each report of the split."""
+    module = _suite_module()
+    trained: list[bool] = []
+    monkeypatch.setattr(module, "train_all", lambda args, out: trained.append(True) or [])
+    with pytest.raises(SystemExit, match="--oracle .*nowhere"):
+        module.main(["--out", str(tmp_path / "a"), "--oracle", str(tmp_path / "nowhere")])
+    ppo_run = tmp_path / "ppo-run"
+    ppo_run.mkdir()
+    (ppo_run / "run_info.json").write_text(json.dumps({"learner": "ppo"}))
+    import report.runs
+
+    # A stand-in load_run that reads only the learner (a real run directory needs a trained run).
+    monkeypatch.setattr(report.runs, "load_run", lambda d: type("R", (), {"learner": json.loads(
+        (Path(d) / "run_info.json").read_text())["learner"]})())  # fmt: skip
+    with pytest.raises(SystemExit, match="a ppo run, not a track-samcon run"):
+        module.main(["--out", str(tmp_path / "a"), "--oracle", str(ppo_run)])
+    assert not trained
+    samcon_run = tmp_path / "samcon-run"
+    samcon_run.mkdir()
+    (samcon_run / "run_info.json").write_text(json.dumps({"learner": "samcon"}))
+    calls: list[list[str]] = []
+    monkeypatch.setattr(module, "compare_main", calls.append)
+    assert module.main(["--suite", "split", "--out", str(tmp_path / "b"), "--oracle", str(samcon_run)]) == 0
+    assert trained == [True] and len(calls) == 2  # report/ and report-train/
+    assert all(call[0] == str(samcon_run) for call in calls)
