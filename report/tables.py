@@ -123,8 +123,8 @@ def parity_table(runs: list[Run], key: str = "eval/mpjpe_g") -> str | None:
 
     B's final figure: the mean over B's runs of their last logged ``key`` (MPJPE-g; lower is better). Per run of A
     (by seed): the samples and training wall-clock at A's first logged evaluation at or below it, and their ratios to
-    B's mean samples and wall-clock at B's last evaluation; "never" where A's curve does not reach it. None with fewer
-    than two methods."""
+    B's mean samples and wall-clock at B's last evaluation; "never" where A's curve does not reach it. Methods without
+    a logged curve (SAMCON) take no part. None with fewer than two methods."""
     groups = method_groups(runs)
     if len(groups) < 2:
         return None
@@ -140,6 +140,8 @@ def parity_table(runs: list[Run], key: str = "eval/mpjpe_g") -> str | None:
             finals[name] = (value, samples_end, seconds_end)
     rows = []
     for a, idx in groups.items():
+        if a not in finals:  # no logged curve (a SAMCON oracle): nothing to reach with
+            continue
         for b, (target, b_samples, b_seconds) in finals.items():
             if a == b:
                 continue

@@ -77,3 +77,6 @@ def test_parity_table_by_hand() -> None:
     assert "seed 0: 500 samples (0.62x), 50.0 s (0.62x)" in rows["ppo"]
     assert "seed 1: 1,500 samples (1.88x), 2.5 min (1.88x)" in rows["ppo"]  # 150 s
     assert parity_table(runs[:2]) is None  # one method: nothing to compare
+    oracle = _run("samcon", 0, [(0, 0.0, 40.0)])
+    oracle.metrics = []  # a SAMCON run logs no evaluations: it neither reaches nor is reached
+    assert parity_table([*runs, oracle]) == md
