@@ -314,6 +314,7 @@ def _results_json(report: Report) -> dict[str, Any]:
         "oracles": {label: {"clips": res.clips, "minutes": minutes,
                             "per_clip": {k: res.per_clip[k].tolist() for k in ("mpjpe_g", "mpjpe_l", "survival")}}
                     for label, (res, minutes) in report.oracles.items()},
+        "parity": tables.parity(report.runs),
     }  # fmt: skip
 
 

@@ -118,16 +118,22 @@ def threshold_table(runs: list[Run]) -> str:
     return table(["run", *(t.label for t in THRESHOLDS)], rows)
 
 
-def parity_table(runs: list[Run], key: str = "eval/mpjpe_g") -> str | None:
+def parity(runs: list[Run], key: str = "eval/mpjpe_g") -> list[dict]:
     """What one method needs to reach another's final figure, for every ordered pair of methods (A, B).
 
     B's final figure: the mean over B's runs of their last logged ``key`` (MPJPE-g; lower is better). Per run of A
     (by seed): the samples and training wall-clock at A's first logged evaluation at or below it, and their ratios to
-    B's mean samples and wall-clock at B's last evaluation; "never" where A's curve does not reach it. Methods without
-    a logged curve (SAMCON) take no part. None with fewer than two methods."""
+    B's mean samples and wall-clock at B's last evaluation; ``samples`` None where A's curve does not reach it.
+    Methods without a logged curve (SAMCON) take no part; fewer than two methods give an empty list.
+
+    Returns:
+        One dict per pair: ``method`` (A), ``target_method`` (B), ``target`` (B's final figure), ``target_samples``,
+        ``target_seconds`` (B's means at its end) and ``runs``: per run of A its ``label``, ``seed``, ``samples``,
+        ``seconds``, ``sample_ratio``, ``time_ratio`` (None where never reached).
+    """
     groups = method_groups(runs)
     if len(groups) < 2:
-        return None
+        return []
     finals: dict[str, tuple[float, float, float]] = {}  # method: (value, samples, seconds), means over its runs
     for name, idx in groups.items():
         ends = []
@@ -138,25 +144,46 @@ def parity_table(runs: list[Run], key: str = "eval/mpjpe_g") -> str | None:
         if ends:
             value, samples_end, seconds_end = (float(np.mean(col)) for col in zip(*ends, strict=True))
             finals[name] = (value, samples_end, seconds_end)
-    rows = []
+    pairs = []
     for a, idx in groups.items():
         if a not in finals:  # no logged curve (a SAMCON oracle): nothing to reach with
             continue
         for b, (target, b_samples, b_seconds) in finals.items():
             if a == b:
                 continue
-            cells = []
+            reached = []
             for i in idx:
                 samples, seconds, values = runs[i].curve(key)
                 hit = next((j for j, v in enumerate(values) if v <= target), None)
-                seed = runs[i].seed
-                where = f"seed {seed}" if seed is not None else runs[i].label
-                if hit is None:
-                    cells.append(f"{where}: never")
-                else:
-                    cells.append(f"{where}: {samples[hit]:,} samples ({samples[hit] / b_samples:.2f}x), "
-                                 f"{_duration(seconds[hit])} ({seconds[hit] / b_seconds:.2f}x)")  # fmt: skip
-            rows.append([a, f"{b}: {target:.1f}", "; ".join(cells)])
+                entry: dict = {"label": runs[i].label, "seed": runs[i].seed, "samples": None, "seconds": None,
+                               "sample_ratio": None, "time_ratio": None}  # fmt: skip
+                if hit is not None:
+                    entry.update(samples=int(samples[hit]), seconds=float(seconds[hit]),
+                                 sample_ratio=float(samples[hit] / b_samples),
+                                 time_ratio=float(seconds[hit] / b_seconds))  # fmt: skip
+                reached.append(entry)
+            pairs.append({"method": a, "target_method": b, "target": target, "target_samples": b_samples,
+                          "target_seconds": b_seconds, "runs": reached})  # fmt: skip
+    return pairs
+
+
+def parity_table(runs: list[Run], key: str = "eval/mpjpe_g") -> str | None:
+    """:func:`parity` as a Markdown table: one row per ordered pair of methods, the runs of A by seed. None with
+    fewer than two methods."""
+    pairs = parity(runs, key)
+    if not pairs:
+        return None
+    rows = []
+    for pair in pairs:
+        cells = []
+        for r in pair["runs"]:
+            where = f"seed {r['seed']}" if r["seed"] is not None else r["label"]
+            if r["samples"] is None:
+                cells.append(f"{where}: never")
+            else:
+                cells.append(f"{where}: {r['samples']:,} samples ({r['sample_ratio']:.2f}x), "
+                             f"{_duration(r['seconds'])} ({r['time_ratio']:.2f}x)")  # fmt: skip
+        rows.append([pair["method"], f"{pair['target_method']}: {pair['target']:.1f}", "; ".join(cells)])
     return table(["method", "reaches the final MPJPE-g (mm) of", "first evaluation at or below it, per seed "
                   "(ratio to the other's samples and minutes at its end)"], rows)  # fmt: skip
 

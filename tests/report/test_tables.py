@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from report.runs import Run
-from report.tables import clip_summary_table, metric_tables, parity_table
+from report.tables import clip_summary_table, metric_tables, parity, parity_table
 
 
 def _result(survival: list[float], mpjpe_g: list[float], mpjpe_l: list[float]) -> SimpleNamespace:
@@ -80,3 +80,11 @@ def test_parity_table_by_hand() -> None:
     oracle = _run("samcon", 0, [(0, 0.0, 40.0)])
     oracle.metrics = []  # a SAMCON run logs no evaluations: it neither reaches nor is reached
     assert parity_table([*runs, oracle]) == md
+    # the same figures as data, as results.json keeps them
+    data = {(p["method"], p["target_method"]): p for p in parity(runs)}
+    st = data["supertrack", "ppo"]
+    assert st["target"] == 70.0 and st["target_samples"] == 2000.0 and st["target_seconds"] == 200.0
+    assert st["runs"][0] == {"label": "supertrack:supertrack-0", "seed": 0, "samples": 400, "seconds": 40.0,
+                             "sample_ratio": 0.2, "time_ratio": 0.2}  # fmt: skip
+    assert st["runs"][1]["samples"] is None and st["runs"][1]["sample_ratio"] is None
+    assert parity(runs[:2]) == []
