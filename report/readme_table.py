@@ -152,7 +152,7 @@ def _reaches(pair: dict[str, Any], name: str, other: str) -> str:
     minutes."""
     runs = pair["runs"]
     hits = [r for r in runs if r["samples"] is not None]
-    head = f"{other}'s {pair['target']:.0f} mm: "
+    head = f"{other}'s {millimetres(pair['target'])} mm: "
     if not hits:
         return head + f"never ({name}: 0 of {len(runs)} seeds)"
     samples = statistics.fmean(r["sample_ratio"] for r in hits)
