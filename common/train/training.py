@@ -280,8 +280,8 @@ class Trainer:
 
     def _next(self, minutes: float | None, iterations: int) -> tuple[str, float]:
         if minutes is not None:
-            return ("seconds", self.train_seconds + 60.0 * minutes)
-        return ("iterations", self.iteration + iterations)
+            return ("seconds", next_mark(self.train_seconds, 60.0 * minutes))
+        return ("iterations", next_mark(self.iteration, iterations))
 
     def _due(self, when: tuple[str, float]) -> bool:
         kind, value = when
@@ -294,6 +294,13 @@ class Trainer:
             or (t.max_samples is not None and self.samples >= t.max_samples)
             or (t.max_iterations is not None and self.iteration >= t.max_iterations)
         )
+
+
+def next_mark(now: float, every: float) -> float:
+    """The first multiple of ``every`` after ``now``. Evaluations fall on this grid, so a run resumed from a checkpoint
+    is evaluated at the same training minutes (iterations) as one run straight, and a late evaluation does not push
+    the later ones back."""
+    return (math.floor(now / every) + 1) * every
 
 
 class NanGuard:

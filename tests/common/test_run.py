@@ -22,6 +22,7 @@ from common.run.directory import (
     rng_state,
     set_rng_state,
 )
+from common.train.training import next_mark
 
 
 @dataclass(frozen=True)
@@ -226,3 +227,11 @@ def test_an_option_added_since_the_checkpoint_is_accepted_only_at_its_default() 
         check_compatible(saved, {"learner": "ppo", "config": {"lr": 0.5}}, "p", defaults)
     with pytest.raises(ValueError, match="2 differences"):  # without defaults every new key differs
         check_compatible(saved, at_default, "p")
+
+
+def test_evaluations_fall_on_a_grid_that_a_resume_or_a_late_evaluation_does_not_shift() -> None:
+    assert next_mark(0.0, 900.0) == 900.0  # a fresh run: the first evaluation after 15 minutes
+    assert next_mark(600.0, 900.0) == 900.0  # resumed from a 10-minute checkpoint: still at 15, not at 25
+    assert next_mark(903.7, 900.0) == 1800.0  # evaluated 3.7 s late: the next one is still at 30
+    assert next_mark(900.0, 900.0) == 1800.0
+    assert next_mark(3, 4) == 4 and next_mark(4, 4) == 8  # iterations

@@ -83,6 +83,10 @@ def test_resume_continues_exactly(runs: dict[str, Path]) -> None:
     ma, mb = (read_metrics(runs[k] / "metrics.jsonl") for k in ("a", "b"))
     assert _compared(_line(ma, 6, "losses/policy")) == _compared(_line(mb, 6, "losses/policy"))
     assert _compared(ma[-1]) == _compared(mb[-1])
+    # Evaluations stay on the straight run's grid (every 4 iterations): the resumed run (from 3, whose end evaluated
+    # too) is evaluated at 4 as well, not first at 3 + 4.
+    evaluated = [[r["iteration"] for r in m if "eval/mpjpe_g" in r] for m in (ma, mb)]
+    assert evaluated == [[4, 6], [3, 4, 6]]
 
 
 def test_resume_with_another_config_fails_clearly(runs: dict[str, Path]) -> None:
