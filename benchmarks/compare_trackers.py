@@ -91,6 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="the tiny debug configs (tests and smoke runs)")
     parser.add_argument("--starts", type=int, default=None, help="start frames per clip of the final evaluation")
     parser.add_argument("--no-render", action="store_true", help="skip the filmstrips and videos")
+    parser.add_argument("--video-clips", type=int, default=None, metavar="N",
+                        help="clips per method rendered as MP4 (default: every clip; a 20-clip suite's 40 videos "
+                             "take about half an hour)")  # fmt: skip
     parser.add_argument("--no-pushes", action="store_true", help="skip the robustness re-evaluation")
     parser.add_argument("--train-only", action="store_true", help="train (or reuse) the runs, build no report")
     parser.add_argument("--oracle", action="append", default=[], metavar="SAMCON_RUN_DIR",
@@ -229,6 +232,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     options = [] if args.starts is None else ["--starts", str(args.starts)]
     options += ["--no-render"] * args.no_render + ["--no-pushes"] * args.no_pushes
+    options += [] if args.video_clips is None else ["--video-clips", str(args.video_clips)]
     for folder, motions in judged_motions(args):
         compare_main([*(str(j.out) for j in todo), *args.oracle, "--out", str(out / folder), "--motions", *motions,
                       *options])  # fmt: skip

@@ -143,10 +143,11 @@ def test_the_generalisation_split_is_fixed_disjoint_and_covers_the_library() -> 
     assert m.judged_motions(walk) == [("report", ["walk"])]
 
 
-def test_an_oracle_is_checked_before_training_and_joins_every_report(
+def test_an_oracle_is_checked_before_training_and_joins_every_report_with_the_options(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     """--oracle: a missing or non-SAMCON run directory stops the suite before any run starts; a SAMCON one is handed
-    to compare-trackers with the suite's runs, for each report of the split."""
+    to compare-trackers with the suite's runs, for each report of the split; the report options (--no-pushes,
+    --video-clips) are handed on as given."""
     module = _suite_module()
     trained: list[bool] = []
     monkeypatch.setattr(module, "train_all", lambda args, out: trained.append(True) or [])
@@ -171,3 +172,7 @@ def test_an_oracle_is_checked_before_training_and_joins_every_report(
     assert module.main(["--suite", "split", "--out", str(tmp_path / "b"), "--oracle", str(samcon_run)]) == 0
     assert trained == [True] and len(calls) == 2  # report/ and report-train/
     assert all(call[0] == str(samcon_run) for call in calls)
+    assert all("--video-clips" not in call for call in calls)  # compare-trackers' default: every clip
+    calls.clear()
+    assert module.main(["--suite", "all20", "--out", str(tmp_path / "c"), "--video-clips", "1", "--no-pushes"]) == 0
+    assert calls == [["--out", str(tmp_path / "c" / "report"), "--motions", "all", "--no-pushes", "--video-clips", "1"]]
