@@ -93,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-render", action="store_true", help="skip the filmstrips and videos")
     parser.add_argument("--video-clips", type=int, default=None, metavar="N",
                         help="clips per method rendered as MP4 (default: every clip; a 20-clip suite's 40 videos "
-                             "take about half an hour)")  # fmt: skip
+                             "take about 25 minutes, at about 36 s each)")  # fmt: skip
     parser.add_argument("--no-pushes", action="store_true", help="skip the robustness re-evaluation")
     parser.add_argument("--train-only", action="store_true", help="train (or reuse) the runs, build no report")
     parser.add_argument("--oracle", action="append", default=[], metavar="SAMCON_RUN_DIR",
