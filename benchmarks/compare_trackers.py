@@ -41,6 +41,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from common.errors import non_negative_int  # noqa: E402
 from common.run.logs import read_metrics  # noqa: E402
 from report.compare import main as compare_main  # noqa: E402
 
@@ -91,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="the tiny debug configs (tests and smoke runs)")
     parser.add_argument("--starts", type=int, default=None, help="start frames per clip of the final evaluation")
     parser.add_argument("--no-render", action="store_true", help="skip the filmstrips and videos")
-    parser.add_argument("--video-clips", type=int, default=None, metavar="N",
+    parser.add_argument("--video-clips", type=non_negative_int, default=None, metavar="N",
                         help="clips per method rendered as MP4 (default: every clip; a 20-clip suite's 40 videos "
                              "take about 25 minutes, at about 36 s each)")  # fmt: skip
     parser.add_argument("--no-pushes", action="store_true", help="skip the robustness re-evaluation")

@@ -176,3 +176,7 @@ def test_an_oracle_is_checked_before_training_and_joins_every_report_with_the_op
     calls.clear()
     assert module.main(["--suite", "all20", "--out", str(tmp_path / "c"), "--video-clips", "1", "--no-pushes"]) == 0
     assert calls == [["--out", str(tmp_path / "c" / "report"), "--motions", "all", "--no-pushes", "--video-clips", "1"]]
+    trained.clear()
+    with pytest.raises(SystemExit):  # refused by argparse, before anything trains
+        module.main(["--suite", "all20", "--out", str(tmp_path / "d"), "--video-clips", "-1"])
+    assert not trained
