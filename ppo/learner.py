@@ -35,6 +35,7 @@ from common.sim.collect import Block, CollectorSpec, chart_metrics, make_collect
 from common.sim.gym import StepResult
 from common.sim.motion_weights import MotionWeights
 from common.sim.observation import Observer
+from common.train.distributed import World
 from common.train.training import NanGuard, gym_config
 from ppo.actor import GymActor, actor_weights, frame_fields, observation_layout, pd_targets
 from ppo.amp import AMP
@@ -54,14 +55,24 @@ class PPOLearner:
         library: Clips to track.
         humanoid: The model.
         rng: The learner's numpy generator (exploration noise, minibatch order); the trainer saves and restores it.
+        world: This process's rank in a data-parallel run (:mod:`common.train.distributed`); default: a single
+            process. Each rank collects its own rollout with its own gym and updates on it; the gradients of every
+            minibatch step (and the approximate KL of an epoch, with ``ppo.target_kl``) are averaged over the ranks,
+            every rank's observation statistics go into the normaliser and its finished episodes into the adaptive
+            clip weights, in rank order.
 
     Raises:
-        ValueError: On a config the collector refuses (e.g. more collector processes than characters).
+        ValueError: On a config the collector refuses (e.g. more collector processes than characters), or AMP with
+            more than one rank.
     """
 
     def __init__(self, config: PPOTrackerConfig, library: MotionLibrary, humanoid: Humanoid,
-                 rng: np.random.Generator) -> None:  # fmt: skip
+                 rng: np.random.Generator, world: World | None = None) -> None:  # fmt: skip
         self.config, self.library, self.humanoid, self.rng = config, library, humanoid, rng
+        self.world = World() if world is None else world
+        if self.world.distributed and config.amp.enabled:
+            raise ValueError("amp.enabled with more than one rank: the AMP discriminator does not train data-parallel "
+                             "yet (run AMP in one process)")  # fmt: skip
         self.device = torch.device(config.train.device)
         self.motion_weights = MotionWeights(library.num_clips, config.motion_weights)
         self.num_envs, self.action_size = config.gym.num_envs, humanoid.nu
@@ -72,6 +83,7 @@ class PPOLearner:
         self.normalizer = RunningNormalizer(normalized_mask(layout, n.exclude), n.clip, n.epsilon, n.max_samples)
         self.obs_size = self.normalizer.size
         self.net = ActorCritic(self.obs_size, self.action_size, config.network).to(self.device)
+        self.world.broadcast_modules(self.net)
         p = config.ppo
         self.optimizer = torch.optim.Adam(
             [{"params": self.net.actor_parameters(), "lr": p.actor_lr},
@@ -112,7 +124,8 @@ class PPOLearner:
                              noise_seed=c.train.seed,
                              max_steps=c.ppo.rollout_length, clip_weights=self._clip_weights(),
                              torch_threads=c.train.torch_threads,
-                             inputs={"noise": ((self.action_size,), "float64")})  # fmt: skip
+                             inputs={"noise": ((self.action_size,), "float64")},
+                             first_source=self.world.first_source(c.collect.processes))  # fmt: skip
 
     # ----------------------------------------------------------------------------------------------- acting
     def _clip_weights(self) -> np.ndarray | None:
@@ -139,8 +152,10 @@ class PPOLearner:
         f = block.frames
         returns: list[float] = []
         amp_fields = ("amp_obs", "amp_next") if self.amp is not None else ()
+        # Every rank's sources' observation moments, in rank then source order (one rank: this block's).
+        reports = [report for rank in self.world.all_gather(block.reports) for report in rank]
         for t in range(block.steps):
-            self.normalizer.merge(combine_moments([report[t] for report in block.reports]))
+            self.normalizer.merge(combine_moments([report[t] for report in reports]))
             terminated, truncated = f["terminated"][t], f["truncated"][t]
             self.buffer.push(
                 obs=f["obs"][t], action=f["action"][t], log_prob=f["log_prob"][t], value=f["value"][t],
@@ -151,7 +166,8 @@ class PPOLearner:
             done = np.flatnonzero(terminated | truncated)
             returns += self.episode_return[done].tolist()
             self.episode_return[done] = 0.0
-        self.motion_weights.record_block(f)
+        self.motion_weights.record_block(self.world.concat_characters(
+            {k: f[k] for k in ("clip", "terminated", "truncated")}))
         if self.amp is not None:
             self.amp.add_rollout(f["amp_obs"].reshape(-1, self.amp_size), f["amp_next"].reshape(-1, self.amp_size))
         self.last_value = f["next_value"][-1].astype(np.float64)
@@ -211,12 +227,16 @@ class PPOLearner:
                     log_prob, entropy, mean, values, batch["log_prob"][idx], batch["value"][idx],
                     batch["advantage"][idx], batch["return"][idx], p,
                 )  # fmt: skip
-                checked = {"total": loss, "policy": metrics["policy"], "value": metrics["value"]}
+                self.optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                # Data-parallel: gradients and losses averaged over the ranks (a single process: unchanged), so that
+                # a non-finite loss on any rank skips the step on every rank.
+                checked = dict(zip(("total", "policy", "value"), self.world.average_gradients(
+                    self.net.parameters(), torch.stack([loss, metrics["policy"], metrics["value"]]), "policy"),
+                    strict=True))  # fmt: skip
                 stats = {"return_mean": float(batch["return"][idx].mean()), "adv_std": float(batch["advantage"].std())}
                 if not self.nan_guard.check(checked, stats):
                     continue
-                self.optimizer.zero_grad(set_to_none=True)
-                loss.backward()
                 if p.max_grad_norm is not None:
                     # Each network on its own, so that a spike in the critic's gradient (returns of tens) does not
                     # scale down the policy's step.
@@ -228,7 +248,7 @@ class PPOLearner:
                     sums[k] = sums.get(k, 0.0) + float(v)
                 steps += 1
                 epoch_kl.append(float(metrics["approx_kl"]))
-            if p.target_kl is not None and epoch_kl and np.mean(epoch_kl) > p.target_kl:
+            if p.target_kl is not None and self.world.mean(float(np.mean(epoch_kl)) if epoch_kl else 0.0) > p.target_kl:
                 break
         self.updates += 1
         out = {f"losses/{k}": v / max(steps, 1) for k, v in sums.items()}

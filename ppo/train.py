@@ -16,6 +16,7 @@ import numpy as np
 from common.character.humanoid import Humanoid
 from common.motion.library import MotionLibrary
 from common.train.command import TrainingCommand, train_main
+from common.train.distributed import World
 from ppo.config import PPOTrackerConfig
 from ppo.learner import PPOLearner
 
@@ -29,12 +30,13 @@ EXAMPLES = (
     "train-ppo --motions walk --max-minutes 15 --out runs/ppo-walk",
     "train-ppo --out runs/ppo-walk --resume --max-minutes 30",
     "train-ppo --config debug --set ppo.actor_lr=1e-4 --set gym.num_envs=32",
+    "torchrun --standalone --nproc_per_node=2 -m ppo.train --set gym.threads=1 --out runs/ppo-2ranks   # 2 ranks",
 )
 
 
 def _make_learner(cfg: PPOTrackerConfig, humanoid: Humanoid, library: MotionLibrary, rng: np.random.Generator,
-                  prepared: Any) -> PPOLearner:  # fmt: skip
-    return PPOLearner(cfg, library, humanoid, rng)
+                  prepared: Any, world: World) -> PPOLearner:  # fmt: skip
+    return PPOLearner(cfg, library, humanoid, rng, world)
 
 
 COMMAND = TrainingCommand(

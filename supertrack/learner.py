@@ -35,6 +35,7 @@ from common.sim.buffer import CyclicBuffer
 from common.sim.collect import Block, CollectorSpec, chart_metrics, make_collector
 from common.sim.motion_weights import MotionWeights
 from common.train.averaging import WeightAverage
+from common.train.distributed import World
 from common.train.training import NanGuard, gym_config
 from supertrack.actor import Actor, GymActor
 from supertrack.config import SuperTrackConfig
@@ -84,11 +85,15 @@ class SuperTrackLearner:
         humanoid: The model.
         library: The motions to track (normaliser statistics and the gym's references).
         rng: The learner's generator (exploration noise in the gym, window draws); the Trainer saves it.
+        world: This process's rank in a data-parallel run (:mod:`common.train.distributed`); default: a single
+            process. Each rank has its own gym, collector and buffers; the gradients of both networks are averaged
+            over the ranks and the finished episodes of all ranks update the adaptive clip weights.
     """
 
     def __init__(self, cfg: SuperTrackConfig, humanoid: Humanoid, library: MotionLibrary,
-                 rng: np.random.Generator) -> None:  # fmt: skip
+                 rng: np.random.Generator, world: World | None = None) -> None:  # fmt: skip
         self.cfg, self.humanoid, self.library, self.rng = cfg, humanoid, library, rng
+        self.world = World() if world is None else world
         self.device = torch.device(cfg.train.device)
         n_bodies, n_joints = humanoid.num_bodies, len(humanoid.joint_groups)
         min_std = cfg.buffer.normalizer_min_std
@@ -100,6 +105,7 @@ class SuperTrackLearner:
         ).to(self.device)  # fmt: skip
         self.policy_net = Policy(n_joints, cfg.policy.hidden, local_norm, cfg.policy.init_scale,
                                  root_offset=cfg.policy.root_offset, revolute=revolute).to(self.device)  # fmt: skip
+        self.world.broadcast_modules(self.world_model, self.policy_net)
         self.steps = _steps(cfg)
         # The W the policy learns through. With policy.concurrent it is a copy of W taken at the start of every
         # update (sharing the Local() normaliser, which never changes), so that the policy step can run in a second
@@ -135,8 +141,8 @@ class SuperTrackLearner:
         spec = CollectorSpec(gym=gym_config(cfg), library=library, humanoid=humanoid, actor_factory=factory,
                              fields=gym_fields(n_bodies, n_joints), noise_seed=cfg.train.seed,
                              max_steps=max(c.steps_per_iteration, c.warmup_steps),
-                             clip_weights=self._clip_weights(),
-                             torch_threads=cfg.train.torch_threads)  # fmt: skip
+                             clip_weights=self._clip_weights(), torch_threads=cfg.train.torch_threads,
+                             first_source=self.world.first_source(c.processes))  # fmt: skip
         self.collector = make_collector(spec, c.processes, self.policy_net.state_dict())
 
     def _new_guards(self) -> None:
@@ -153,7 +159,8 @@ class SuperTrackLearner:
         next_steps = max(c.steps_per_iteration, c.warmup_steps - self.train_buffer.total_pushed - steps)
         block = self.collector.next_block(self.policy_net.state_dict(), self.updates, steps, next_steps,
                                           clip_weights=self._clip_weights())  # fmt: skip
-        self.motion_weights.record_block(block.frames)
+        self.motion_weights.record_block(self.world.concat_characters(
+            {k: block.frames[k] for k in ("clip", "terminated", "truncated")}))
         self._push(block)
         for k, v in block.charts.items():
             self._charts[k] = self._charts.get(k, 0.0) + v
@@ -380,9 +387,12 @@ class SuperTrackLearner:
                   stats: dict[str, float]) -> dict[str, float]:  # fmt: skip
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
+        # Data-parallel: the gradients and the loss averaged over the ranks (a single process: unchanged), so that
+        # every rank clips, checks and steps alike.
+        mean_loss = self.world.average_gradients(module.parameters(), loss, stream=name)
         grad_norm = torch.nn.utils.clip_grad_norm_(module.parameters(), math.inf if grad_clip is None else grad_clip)
         # A finite loss can still give non-finite gradients (e.g. through a degenerate rotation): check both.
-        if guard.check({name: loss, f"{name}_grad_norm": grad_norm}, stats):
+        if guard.check({name: mean_loss, f"{name}_grad_norm": grad_norm}, stats):
             optimizer.step()
         metrics[f"losses/{name}_grad_norm"] = grad_norm.detach()
         values = torch.stack(list(metrics.values())).cpu().tolist()

@@ -22,6 +22,7 @@ from common.run.checkpoint import CheckpointError
 from common.run.directory import read_checkpoint
 from common.sim.collect import CollectorError
 from common.train.command import TrainingCommand, train_main
+from common.train.distributed import World
 from supertrack.config import SuperTrackConfig
 from supertrack.learner import SuperTrackLearner, clip_weights
 
@@ -42,6 +43,8 @@ EXAMPLES = (
     "train-supertrack --config paper --device cuda --motions all --out runs/st-all",
     "train-supertrack --set 'collect.clip_weights={walk: 10}' --motions walk jog run   # oversample walk",
     "train-supertrack --init-from runs/st-walk --motions run --out runs/st-run   # fine-tune walk to run",
+    "torchrun --standalone --nproc_per_node=2 -m supertrack.train --set gym.threads=1 --out runs/st-2ranks"
+    "   # 2 ranks",
 )
 
 
@@ -104,8 +107,8 @@ def _info(init: tuple[Path, dict[str, Any]] | None) -> dict[str, Any]:
 
 
 def _make_learner(cfg: SuperTrackConfig, humanoid: Humanoid, library: MotionLibrary, rng: np.random.Generator,
-                  init: tuple[Path, dict[str, Any]] | None) -> SuperTrackLearner:  # fmt: skip
-    learner = SuperTrackLearner(cfg, humanoid, library, rng)
+                  init: tuple[Path, dict[str, Any]] | None, world: World) -> SuperTrackLearner:  # fmt: skip
+    learner = SuperTrackLearner(cfg, humanoid, library, rng, world)
     if init is not None:
         try:
             learner.init_networks(init[1]["learner"])

@@ -3,9 +3,11 @@
 A learner's command is a :class:`TrainingCommand`: its name, config class, texts, and how to build its learner.
 :func:`train_main` does the rest the same way for every learner: parse the options, validate config and motions
 before anything is written (:func:`common.train.startup.prepare`), build the learner, resume if asked, train to the
-budget with a clean Ctrl-C (the first finishes the iteration, evaluates and checkpoints; the second aborts without
-saving), print the final table. An error a user can fix ends in one line (``error: ...``) and exit status 2 (bad
-input, nothing written) or 1 (a failure during the run); a bug keeps its traceback (:mod:`common.errors`).
+budget with a clean Ctrl-C or SIGTERM (the first finishes the iteration, checkpoints and evaluates; the second aborts
+without saving), print the final table. Under ``torchrun`` the same command is one rank of a data-parallel run
+(:mod:`common.train.distributed`): every rank validates its inputs and builds its learner; rank 0 alone writes. An
+error a user can fix ends in one line (``error: ...``) and exit status 2 (bad input, nothing written) or 1 (a failure
+during the run); a bug keeps its traceback (:mod:`common.errors`).
 """
 
 from __future__ import annotations
@@ -14,11 +16,9 @@ import argparse
 import signal
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import FrameType
 from typing import Any
-
-import numpy as np
 
 from common.character.humanoid import Humanoid
 from common.config import ConfigError
@@ -29,7 +29,8 @@ from common.motion.motion import MotionFormatError
 from common.run.checkpoint import CheckpointError
 from common.run.directory import RunDirError
 from common.sim.collect import CollectorError
-from common.train.startup import add_common_arguments, prepare, start
+from common.train.distributed import DistributedError, World, from_environment
+from common.train.startup import add_common_arguments, check_device_available, prepare, start
 from common.train.training import Learner, Trainer, compat_meta
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a process stopped by Ctrl-C
@@ -37,8 +38,12 @@ EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a process stopped by 
 COMMON_EPILOG = """\
 Every run writes RUN_DIR/config.yaml (the resolved config), run_info.json, metrics.jsonl and tb/ (losses/...,
 reward/..., charts/..., perf/..., eval/...) and checkpoints/ (atomic; latest.json names the newest). --out DIR
---resume continues a run exactly. Ctrl-C stops at the end of the current iteration, evaluates and checkpoints
-(press it twice to abort without saving)."""
+--resume continues a run exactly. Ctrl-C (or SIGTERM) stops at the end of the current iteration, checkpoints and
+evaluates (press it twice to abort without saving).
+
+Data-parallel: torchrun --nproc_per_node=N -m <supertrack|ppo>.train ... runs N ranks, each with its own gym
+(seeded apart) and buffer, gradients averaged by torch.distributed (gloo on the CPU, NCCL on CUDA); rank 0 evaluates,
+logs and checkpoints every rank's state. --resume needs the same N. See docs/distributed.md."""
 
 
 @dataclass(frozen=True)
@@ -52,7 +57,8 @@ class TrainingCommand:
         config_cls: The learner's config dataclass.
         description: The ``--help`` text's first part (plain text, wrapped as written).
         examples: Example command lines for the ``--help`` epilog.
-        make_learner: ``(cfg, humanoid, library, rng, prepared) -> learner``; may raise one of ``user_errors``.
+        make_learner: ``(cfg, humanoid, library, rng, prepared, world) -> learner``; may raise one of
+            ``user_errors``.
         add_arguments: Adds the learner's own options to the parser.
         prepare: ``(args) -> prepared``: reads what the learner's own options name (e.g. a checkpoint to start
             from) before the config is resolved; exits with one line on bad input.
@@ -90,7 +96,7 @@ class TrainingCommand:
 
 
 class GracefulStop:
-    """A SIGINT handler: the first asks the loop to stop after the iteration; the second aborts at once."""
+    """A SIGINT / SIGTERM handler: the first asks the loop to stop after the iteration; the second aborts at once."""
 
     def __init__(self) -> None:
         self.requested = False
@@ -110,11 +116,27 @@ def train_main(command: TrainingCommand, argv: Sequence[str] | None = None) -> E
     NaN loss, a failed collector worker) ends in one line and exit status 1, the run directory keeping its last
     checkpoint (:mod:`common.errors`).
     """
-    with one_line_errors(ConfigError, MotionFormatError, CheckpointError, RunDirError):
-        return _train(command, argv)
+    with one_line_errors(ConfigError, MotionFormatError, CheckpointError, RunDirError, DistributedError):
+        world = from_environment()
+        try:
+            return _train(command, argv, world)
+        finally:
+            world.close()
 
 
-def _train(command: TrainingCommand, argv: Sequence[str] | None) -> EvalResult:
+def _rank_device(cfg: Any, world: World, config_path: str) -> Any:
+    """The config with this rank's device (``cuda`` -> ``cuda:<LOCAL_RANK>`` in a data-parallel run)."""
+    device = world.device(cfg.train.device)
+    if device == cfg.train.device:
+        return cfg
+    try:
+        check_device_available(device)
+    except ValueError as e:
+        fail(f"{config_path}: train.{e} (LOCAL_RANK {world.local_rank})")
+    return replace(cfg, train=replace(cfg.train, device=device))
+
+
+def _train(command: TrainingCommand, argv: Sequence[str] | None, world: World) -> EvalResult | None:
     args = command.parser().parse_args(argv)
     prepared = command.prepare(args) if command.prepare is not None else None
 
@@ -122,19 +144,27 @@ def _train(command: TrainingCommand, argv: Sequence[str] | None) -> EvalResult:
         if command.check is not None:
             command.check(cfg, humanoid, library, prepared)
 
-    cfg, run_dir, humanoid, library = prepare(command.config_cls, args, command.name, check=check)
-    rng = np.random.default_rng(cfg.train.seed)
+    # Every rank validates the same inputs (so all refuse alike) before rank 0 makes the run directory.
+    saved_cfg, run_dir, humanoid, library = prepare(command.config_cls, args, command.name, check=check)
+    cfg = _rank_device(saved_cfg, world, args.config)
+    world.init(cfg.train.device)
+    rng = world.generator(cfg.train.seed)
     assert command.make_learner is not None, f"{command.prog}: no make_learner"
     try:
-        learner = command.make_learner(cfg, humanoid, library, rng, prepared)
+        learner = command.make_learner(cfg, humanoid, library, rng, prepared, world)
     except command.user_errors as e:
         if isinstance(e, CollectorError):  # its traceback stays on the lines after the first
             fail(str(e), EXIT_RUN_FAILED)
         fail(one_line(e))
+    world.seed_torch(cfg.train.seed)
     try:
-        start(cfg, run_dir, library, command.name, command.info(prepared) if command.info is not None else None)
+        if world.is_main:
+            info = command.info(prepared) if command.info is not None else {}
+            start(saved_cfg, run_dir, library, command.name,
+                  {**info, **({"world_size": world.size} if world.distributed else {})})  # fmt: skip
         trainer = Trainer(learner, cfg.train, run_dir, library, humanoid, compat_meta(cfg, humanoid, command.name),
-                          command.name, rng, compat_meta(command.config_cls(), humanoid, command.name))  # fmt: skip
+                          command.name, rng, compat_meta(command.config_cls(), humanoid, command.name),
+                          world)  # fmt: skip
         if args.resume:
             try:
                 trainer.resume()
@@ -142,6 +172,7 @@ def _train(command: TrainingCommand, argv: Sequence[str] | None) -> EvalResult:
                 fail(f"cannot resume: {one_line(e)}")
         stop = GracefulStop()
         previous = signal.signal(signal.SIGINT, stop)
+        previous_term = signal.signal(signal.SIGTERM, stop)
         try:
             result = trainer.run(stop=lambda: stop.requested)
         except FloatingPointError as e:
@@ -157,8 +188,11 @@ def _train(command: TrainingCommand, argv: Sequence[str] | None) -> EvalResult:
             fail(f"interrupted; the run directory {run_dir.path} keeps its last checkpoint", EXIT_INTERRUPTED)
         finally:
             signal.signal(signal.SIGINT, previous)
+            signal.signal(signal.SIGTERM, previous_term)
     finally:
         learner.close()
+    if result is None:  # a rank other than 0
+        return None
     print(result.table())
     print(f"run directory: {run_dir.path}")
     return result

@@ -17,6 +17,7 @@ import sys
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -31,9 +32,11 @@ from common.errors import (
 )
 from common.evaluation.evaluate import EvalConfig, EvalResult, Policy, evaluate
 from common.motion.library import MotionLibrary
+from common.run.checkpoint import load_checkpoint_file, recorded_digest
 from common.run.directory import RunDir, check_compatible, rng_state, set_rng_state
 from common.run.logs import MetricsLogger, Progress, Timers
 from common.sim.gym import GymConfig
+from common.train.distributed import World
 
 # The entries of a training checkpoint (Trainer._state): one without them is not a checkpoint to resume.
 _STATE_KEYS = ("meta", "iteration", "samples", "train_seconds", "learner", "rng")
@@ -159,11 +162,15 @@ class Trainer:
         rng: The learner's numpy generator (saved and restored with the other RNGs).
         default_meta: The fingerprint of the learner's default config: a checkpoint written before an option
             existed resumes when the run holds that option at its default (see ``check_compatible``).
+        world: This process's rank in a data-parallel run (default: a single process). Rank 0 alone evaluates,
+            logs and writes checkpoints (holding every rank's state); its clock and a stop request on any rank
+            decide, for every rank, when to checkpoint and when to stop; ``samples`` counts every rank's.
     """
 
     def __init__(self, learner: Learner, train: TrainConfig, run_dir: RunDir, library: MotionLibrary,
                  humanoid: Humanoid, meta: dict[str, Any], name: str, rng: np.random.Generator,
-                 default_meta: dict[str, Any] | None = None) -> None:  # fmt: skip
+                 default_meta: dict[str, Any] | None = None, world: World | None = None) -> None:  # fmt: skip
+        self.world = World() if world is None else world
         self.default_meta = default_meta
         self.learner, self.train, self.run_dir = learner, train, run_dir
         self.library, self.humanoid, self.meta, self.name, self.rng = library, humanoid, meta, name, rng
@@ -173,40 +180,74 @@ class Trainer:
         self.timers = Timers()
         self.last_eval: EvalResult | None = None
 
-    def _state(self) -> dict[str, Any]:
-        """What :meth:`resume` needs (the entries :data:`_STATE_KEYS`)."""
-        return {
-            "meta": self.meta, "iteration": self.iteration, "samples": self.samples,
-            "train_seconds": self.train_seconds, "learner": self.learner.state_dict(), "rng": rng_state(self.rng),
-        }  # fmt: skip
+    def _state(self) -> dict[str, Any] | None:
+        """What :meth:`resume` needs (the entries :data:`_STATE_KEYS`), on rank 0; None on the other ranks.
+
+        A data-parallel run's checkpoint also holds ``world_size`` and, under ``ranks``, the learner state and random
+        state of ranks 1 .. N - 1 (their gyms, buffers and generators; the networks are rank 0's everywhere)."""
+        learner, rng = self.learner.state_dict(), rng_state(self.rng)
+        if not self.world.distributed:
+            return {"meta": self.meta, "iteration": self.iteration, "samples": self.samples,
+                    "train_seconds": self.train_seconds, "learner": learner, "rng": rng}  # fmt: skip
+        ranks = self.world.gather_to_main({"learner": learner, "rng": rng})
+        if ranks is None:
+            return None
+        return {"meta": self.meta, "iteration": self.iteration, "samples": self.samples,
+                "train_seconds": self.train_seconds, "learner": learner, "rng": rng, "world_size": self.world.size,
+                "ranks": ranks[1:]}  # fmt: skip
 
     def resume(self) -> None:
-        """Restores the newest intact checkpoint (saying which, and why any newer one was passed over).
+        """Restores the newest intact checkpoint (saying which, and why any newer one was passed over). Every rank
+        of a data-parallel run reads the file rank 0 chose and restores its own part.
 
         Raises:
-            ValueError: If no checkpoint reads (:class:`common.run.checkpoint.CheckpointError`) or the newest intact
-                one belongs to another config or learner.
+            ValueError: If no checkpoint reads (:class:`common.run.checkpoint.CheckpointError`), the newest intact
+                one belongs to another config or learner, or it was written by a run of another number of ranks.
         """
-        path, state, passed_over = self.run_dir.load_latest_checkpoint(map_location="cpu", required=_STATE_KEYS)
+        world = self.world
+        found: tuple[Path, list[Path]] | BaseException | None = None
+        if world.is_main:
+            try:
+                path, state, passed_over = self.run_dir.load_latest_checkpoint(map_location="cpu",
+                                                                               required=_STATE_KEYS)  # fmt: skip
+                found = (path, passed_over)
+            except ValueError as e:
+                found = e
+        found = world.from_main(found)  # every rank fails alike, or restores from the same file
+        if isinstance(found, BaseException):
+            raise found
+        path, passed_over = found
+        if not world.is_main:
+            state = load_checkpoint_file(path, map_location="cpu", sha256=recorded_digest(path))
         check_compatible(state["meta"], self.meta, path, self.default_meta)
+        saved_size = int(state.get("world_size", 1))
+        if saved_size != world.size:
+            raise ValueError(f"checkpoint {path} was written by a run of {saved_size} rank(s), this run has "
+                             f"{world.size}: resume it with torchrun --nproc_per_node={saved_size} (one machine) "
+                             "or the same total number of ranks")  # fmt: skip
+        mine = state if world.rank == 0 else state["ranks"][world.rank - 1]
         try:
-            self.learner.load_state_dict(state["learner"])
+            self.learner.load_state_dict(mine["learner"])
         except (KeyError, ValueError, RuntimeError) as e:  # a damaged or hand-edited checkpoint; the files stay
             raise CommandError(f"checkpoint {path}: cannot restore the learner: {one_line(e)}") from e
-        set_rng_state(state["rng"], self.rng)
+        set_rng_state(mine["rng"], self.rng)
         self.iteration, self.samples = int(state["iteration"]), int(state["samples"])
         self.train_seconds = float(state["train_seconds"])
-        print(f"resuming from {path} (iteration {self.iteration})", file=sys.stderr)
-        self.run_dir.confirm_resume(passed_over)
+        if world.is_main:
+            print(f"resuming from {path} (iteration {self.iteration}"
+                  + (f", {world.size} ranks)" if world.distributed else ")"), file=sys.stderr)  # fmt: skip
+            self.run_dir.confirm_resume(passed_over)
 
     def evaluate(self) -> EvalResult:
         return evaluate(self.learner.policy(), self.library, self.humanoid, self.train.eval)
 
-    def run(self, stop: Callable[[], bool] | None = None) -> EvalResult:
-        """Trains until a budget is spent; evaluates and checkpoints at the end. Returns the last evaluation."""
+    def run(self, stop: Callable[[], bool] | None = None) -> EvalResult | None:
+        """Trains until a budget is spent; checkpoints, then evaluates at the end. Returns the last evaluation (None
+        on the ranks other than 0 of a data-parallel run, which neither evaluate nor log)."""
         t = self.train
-        logger = MetricsLogger(self.run_dir)
-        if self.run_dir.resume:
+        lead = self.world.is_main
+        logger = MetricsLogger(self.run_dir) if lead else None
+        if logger is not None and self.run_dir.resume:
             logger.truncate_after(self.iteration)
         progress = Progress(
             t.max_iterations,
@@ -215,7 +256,7 @@ class Trainer:
             initial_samples=self.samples,
             keys=("eval/mpjpe_g", "eval/survival", "losses/policy"),
             plain_every=max(1, t.log_every),
-        )
+        ) if lead else None  # fmt: skip
         next_eval = self._next(t.eval_every_minutes, t.eval_every_iterations)
         next_ckpt = self.train_seconds + 60.0 * t.checkpoint_every_minutes
         pending: dict[str, list[float]] = {}
@@ -227,48 +268,64 @@ class Trainer:
             pending["perf/compile_s"] = [time.perf_counter() - start]
         evaluated_at = -1
         try:
-            while not self._budget_spent() and not (stop is not None and stop()):
+            decision = self._decide(stop, checkpoint=False)
+            while not decision["stop"]:
                 start = time.perf_counter()
                 with self.timers("gym"):
-                    self.samples += self.learner.collect()
+                    self.samples += self.learner.collect() * self.world.size
                 with self.timers("update"):
                     stats = self.learner.update()
                 self.iteration += 1
                 self.train_seconds += time.perf_counter() - start
-                for k, v in stats.items():
-                    pending.setdefault(k, []).append(float(v))
-                metrics: dict[str, float] = {}
-                if self.iteration % t.log_every == 0:
-                    metrics.update({k: float(np.nanmean(v)) for k, v in pending.items()})
-                    metrics.update(self.timers.metrics())
-                    metrics["perf/samples_per_s"] = self.samples / max(self.train_seconds, 1e-9)
-                    pending.clear()
-                if self._due(next_eval):
-                    metrics.update(self._evaluate())
-                    evaluated_at = self.iteration
-                    next_eval = self._next(t.eval_every_minutes, t.eval_every_iterations)
-                if metrics:
-                    logger.log(self.iteration, metrics, self.samples, self.train_seconds)
-                progress.update(1, samples=self.samples, metrics=metrics)
-                if self.train_seconds >= next_ckpt:
+                if lead:
+                    for k, v in stats.items():
+                        pending.setdefault(k, []).append(float(v))
+                    metrics: dict[str, float] = {}
+                    if self.iteration % t.log_every == 0:
+                        metrics.update({k: float(np.nanmean(v)) for k, v in pending.items()})
+                        metrics.update(self.timers.metrics())
+                        metrics["perf/samples_per_s"] = self.samples / max(self.train_seconds, 1e-9)
+                        pending.clear()
+                    if self._due(next_eval):
+                        metrics.update(self._evaluate())
+                        evaluated_at = self.iteration
+                        next_eval = self._next(t.eval_every_minutes, t.eval_every_iterations)
+                    if metrics:
+                        logger.log(self.iteration, metrics, self.samples, self.train_seconds)
+                    progress.update(1, samples=self.samples, metrics=metrics)
+                decision = self._decide(stop, checkpoint=self.train_seconds >= next_ckpt)
+                if decision["checkpoint"]:
                     self._save()
                     next_ckpt = self.train_seconds + 60.0 * t.checkpoint_every_minutes
-            # What was gathered since the last log line (a run shorter than log_every: perf/compile_s too) goes into
-            # the last record, with the final evaluation unless the last iteration was just evaluated.
-            final = {k: float(np.nanmean(v)) for k, v in pending.items()}
-            if evaluated_at != self.iteration:
-                final.update(self._evaluate())
-            if final:
-                logger.log(self.iteration, final, self.samples, self.train_seconds)
+            # The checkpoint first (a stop signal under torchrun leaves 30 s before the kill), then what was gathered
+            # since the last log line (a run shorter than log_every: perf/compile_s too) in the last record, with the
+            # final evaluation unless the last iteration was just evaluated.
             self._save()
+            if lead:
+                final = {k: float(np.nanmean(v)) for k, v in pending.items()}
+                if evaluated_at != self.iteration:
+                    final.update(self._evaluate())
+                if final:
+                    logger.log(self.iteration, final, self.samples, self.train_seconds)
         finally:
-            progress.close()
-            logger.close()
+            if lead:
+                progress.close()
+                logger.close()
         return self.last_eval
 
+    def _decide(self, stop: Callable[[], bool] | None, checkpoint: bool) -> dict[str, bool]:
+        """Whether to stop (a budget spent by rank 0's count and clock, or a stop request on any rank) and whether
+        to checkpoint now (rank 0's clock): the same answer on every rank."""
+        flags = self.world.decide(any_request=stop is not None and stop(), budget=self._budget_spent(),
+                                  checkpoint=checkpoint)  # fmt: skip
+        return {"stop": flags["any_request"] or flags["budget"], "checkpoint": flags["checkpoint"]}
+
     def _save(self) -> None:
+        state = self._state()  # every rank's part (a collective in a data-parallel run)
+        if state is None:
+            return
         try:
-            self.run_dir.save_checkpoint(self._state(), self.iteration)
+            self.run_dir.save_checkpoint(state, self.iteration)
         except OSError as e:  # a full disk or a lost mount: what is saved stays, the run cannot go on
             raise CommandError(f"cannot write the checkpoint of iteration {self.iteration} in "
                                f"{self.run_dir.checkpoint_dir}: {e.strerror or e}; the checkpoints already there are "

@@ -30,7 +30,8 @@ over a block (``block_report``, e.g. PPO's observation statistics). Every source
 log the same keys.
 
 Gym seeds: worker p's gym uses ``gym.seed + p`` and its noise generator ``[noise_seed, p]``, so ``processes = 1``
-gives frame for frame what ``processes = 0`` gives with the same weights (and inputs). Episode ids become
+gives frame for frame what ``processes = 0`` gives with the same weights (and inputs); a data-parallel run's rank r
+continues the count (``CollectorSpec.first_source`` = r K, :mod:`common.train.distributed`). Episode ids become
 ``id * K + p`` so that they stay unique across workers.
 """
 

@@ -33,8 +33,10 @@ def _worker(spec: CollectorSpec, part: int, parts: int, conn: Any, slots: list[d
             weights: dict[str, torch.Tensor], inputs: dict[str, torch.Tensor]) -> None:  # fmt: skip
     """A worker process: builds its source, then serves collect / state / load / stop commands until told to stop
     or the learner is gone."""
-    # Ctrl-C reaches the whole process group: the learner shuts the workers down in order, they do not die first.
+    # Ctrl-C (and torchrun's SIGTERM to a rank's process group) reaches the workers too: the learner shuts them down
+    # in order, they do not die first.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     source = None
     try:
         torch.set_num_threads(spec.torch_threads)

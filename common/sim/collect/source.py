@@ -70,6 +70,9 @@ class CollectorSpec:
             call as keyword arguments, one step's rows at a time (e.g. exploration noise drawn by the learner, so
             that the frames do not depend on how the characters are split among processes). Needs a collector that
             does not pipeline.
+        first_source: Index of this collector's first source among the run's (a data-parallel run's rank r with K
+            sources each: r K; :mod:`common.train.distributed`): source p seeds its gym with ``gym.seed +
+            first_source + p`` and its noise with ``[noise_seed, first_source + p]``.
     """
 
     gym: GymConfig
@@ -82,6 +85,7 @@ class CollectorSpec:
     clip_weights: np.ndarray | None = None
     torch_threads: int = 1
     inputs: FieldLayout = field(default_factory=dict)
+    first_source: int = 0
 
     def layout(self) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
         """The block's fields: the actor's, the buffer's bookkeeping fields and ``clip`` (the clip of the episode
@@ -151,11 +155,12 @@ class FrameSource:
         if hi <= lo:
             raise ValueError(f"collect.processes ({parts}) exceeds gym.num_envs ({spec.gym.num_envs})")
         self.part, self.parts = part, parts
-        cfg = replace(spec.gym, num_envs=hi - lo, seed=spec.gym.seed + part)
+        index = spec.first_source + part
+        cfg = replace(spec.gym, num_envs=hi - lo, seed=spec.gym.seed + index)
         self.gym = TrackingGym(cfg, spec.library, spec.humanoid, clip_weights=spec.clip_weights)
         self.res = self.gym.reset()
         self.actor = spec.actor_factory(spec.humanoid)
-        self.rng = np.random.default_rng([spec.noise_seed, part])
+        self.rng = np.random.default_rng([spec.noise_seed, index])
 
     def collect(self, weights: Weights, steps: int, out: Mapping[str, np.ndarray], inputs: Inputs | None = None,
                 clip_weights: np.ndarray | None = None) -> tuple[dict[str, float], Any]:  # fmt: skip
