@@ -23,6 +23,8 @@ collect`: rank r with K sources per rank seeds sources r K ... r K + K - 1), its
 from __future__ import annotations
 
 import os
+import threading
+import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from datetime import timedelta
@@ -39,6 +41,7 @@ TIMEOUT = timedelta(hours=2)
 # Gradient groups: each stream of gradient all-reduces gets its own process group, so that two threads of one rank
 # (SuperTrack's policy.concurrent: W's steps beside the policy's) never interleave collectives on one group.
 GRADIENT_GROUPS = ("world_model", "policy")
+_COUNTING = threading.Lock()
 
 
 class DistributedError(RuntimeError):
@@ -60,6 +63,10 @@ class World:
     size: int = 1
     local_rank: int = 0
     groups: dict[str, Any] = field(default_factory=dict, repr=False)
+    # Gradient all-reduces since the last :meth:`pop_metrics`: calls, seconds (waiting for the slowest rank
+    # included), bytes of this rank's buffer.
+    _reduced: dict[str, float] = field(default_factory=lambda: {"calls": 0.0, "seconds": 0.0, "bytes": 0.0},
+                                       repr=False, compare=False)  # fmt: skip
 
     @property
     def is_main(self) -> bool:
@@ -140,7 +147,12 @@ class World:
         params = [p for p in params if p.requires_grad]
         grads = [torch.zeros_like(p) if p.grad is None else p.grad for p in params]
         flat = torch.cat([g.reshape(-1) for g in grads] + [losses.detach().reshape(-1).to(grads[0].dtype)])
+        start = time.perf_counter()
         dist.all_reduce(flat, group=self.groups[stream])
+        with _COUNTING:  # SuperTrack's two threads both count
+            r = self._reduced
+            r["calls"], r["bytes"] = r["calls"] + 1, r["bytes"] + flat.numel() * flat.element_size()
+            r["seconds"] += time.perf_counter() - start
         flat /= self.size
         offset = 0
         for p, g in zip(params, grads, strict=True):
@@ -151,6 +163,15 @@ class World:
                 p.grad.copy_(flat[offset : offset + n].view_as(p))
             offset += n
         return flat[offset:].view_as(losses).to(losses.dtype)
+
+    def pop_metrics(self, iterations: int) -> dict[str, float]:
+        """The gradient all-reduces per iteration over the last ``iterations`` (``perf/allreduce_...``: calls,
+        seconds, MB of this rank's buffer), then zeroed; empty in a single process."""
+        if not self.distributed or iterations < 1:
+            return {}
+        r, self._reduced = self._reduced, {"calls": 0.0, "seconds": 0.0, "bytes": 0.0}
+        return {"perf/allreduce_calls": r["calls"] / iterations, "perf/allreduce_s": r["seconds"] / iterations,
+                "perf/allreduce_mb": r["bytes"] / iterations / 1e6}  # fmt: skip
 
     # Control -------------------------------------------------------------------------------------------------------
 

@@ -284,6 +284,7 @@ class Trainer:
                     if self.iteration % t.log_every == 0:
                         metrics.update({k: float(np.nanmean(v)) for k, v in pending.items()})
                         metrics.update(self.timers.metrics())
+                        metrics.update(self.world.pop_metrics(t.log_every))
                         metrics["perf/samples_per_s"] = self.samples / max(self.train_seconds, 1e-9)
                         pending.clear()
                     if self._due(next_eval):
