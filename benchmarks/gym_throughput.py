@@ -3,7 +3,8 @@
 Raw: ``mujoco.rollout`` of N characters for ``substeps`` physics steps with fixed controls and no Python work.
 Gym: ``TrackingGym.step`` with PD targets = reference + noise (kinematics, reference queries, rewards, termination,
 resets). Blocks of both alternate within one run, so that a busy machine slows both alike; the ratio of their
-median rates is the figure (target >= 0.8 at N = 256).
+median rates is the figure (target >= 0.9 at N = 256; about 0.83 now: docs/gym-and-judge.md, "Speed", has what
+the gym's share costs and why it stays below 0.9 on 2 cores).
 
 Usage: python benchmarks/gym_throughput.py [--envs 64 256] [--steps 60] [--repeats 5] [--threads 2]
 """

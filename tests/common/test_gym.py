@@ -192,6 +192,36 @@ def test_state_dict_continues_exactly(library: MotionLibrary, humanoid: Humanoid
     np.testing.assert_array_equal(np.stack(a), np.stack(b))
 
 
+def test_step_agrees_with_its_parts_to_the_bit(library: MotionLibrary, humanoid: Humanoid) -> None:
+    """step() prepares the reference while the physics runs on another thread: its numbers are still those of the
+    parts computed one after the other, and the same on one rollout thread as on two."""
+    cfg = GymConfig(num_envs=5, seed=2, termination=TerminationConfig(max_episode_frames=7, grace_frames=2))
+    gyms = [TrackingGym(replace(cfg, threads=t), library, humanoid) for t in (1, 2)]
+    results = [g.reset() for g in gyms]
+    fn = TrackingReward(humanoid, cfg.reward)
+    rng = np.random.default_rng(4)
+    resets = 0
+    for _ in range(30):
+        targets = gyms[0].reference_targets() + rng.normal(scale=0.3, size=(5, humanoid.nu))
+        results = [g.step(targets) for g in gyms]
+        res = results[0]
+        resets += int(res.done.sum())
+        reward, terms = fn(res.final_sim, res.final_ref)
+        np.testing.assert_array_equal(res.reward, np.where(res.diverged, 0.0, reward))
+        for k in terms:
+            np.testing.assert_array_equal(res.reward_terms[k], terms[k])
+        expected_next = library.query(res.final_clip, res.final_time + gyms[0].dt)
+        for a, b in zip(vars(res.final_ref_next).values(), vars(expected_next).values(), strict=True):
+            np.testing.assert_array_equal(a, b)
+        for f in ("sim", "ref", "ref_next", "final_sim", "final_ref"):
+            for a, b in zip(vars(getattr(res, f)).values(), vars(getattr(results[1], f)).values(), strict=True):
+                np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(res.reward, results[1].reward)
+    assert resets > 0
+    for g in gyms:
+        g.close()
+
+
 def test_bad_actions_fail_clearly(library: MotionLibrary, humanoid: Humanoid) -> None:
     gym = _gym(library, humanoid)
     with pytest.raises(RuntimeError, match="reset"):

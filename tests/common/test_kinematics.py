@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+import pytest
 
 from common.character.humanoid import Humanoid
-from common.character.kinematics import ForwardKinematics
+from common.character.kinematics import SERIAL_BELOW, ForwardKinematics
 from common.maths.rotations import quat_normalize
 from common.motion.library import body_states
 
@@ -50,3 +51,24 @@ def test_body_velocity_equals_mujoco_object_velocity() -> None:
         mujoco.mj_objectVelocity(h.model, d, mujoco.mjtObj.mjOBJ_XBODY, b + 1, v, 0)
         np.testing.assert_allclose(ours.body_angvel[0, b], v[:3], atol=1e-12)
         np.testing.assert_allclose(ours.body_linvel[0, b], v[3:], atol=1e-12)
+
+
+def test_thread_pool_and_calling_thread_agree_to_the_bit() -> None:
+    """Small batches run on the calling thread, large ones in chunks on the pool: the same numbers either way."""
+    h = Humanoid()
+    rng = np.random.default_rng(2)
+    n = SERIAL_BELOW + 9
+    qpos = np.tile(h.model.qpos0, (n, 1))
+    qpos[:, 2] += 1.0
+    qpos[:, 7:] += rng.uniform(-1, 1, size=(n, h.nq - 7))
+    qvel = rng.normal(size=(n, h.nv))
+    fk = ForwardKinematics(h, threads=2)
+    pooled = fk(qpos, qvel)
+    parts = [fk(qpos[i : i + 5], qvel[i : i + 5]) for i in range(0, n, 5)]
+    serial = ForwardKinematics(h, threads=1)(qpos, qvel)
+    for name in ("body_pos", "body_rot", "body_linvel", "body_angvel"):
+        np.testing.assert_array_equal(np.concatenate([getattr(p, name) for p in parts]), getattr(pooled, name))
+        np.testing.assert_array_equal(getattr(serial, name), getattr(pooled, name))
+    fk.close()
+    with pytest.raises(RuntimeError, match="close"):
+        fk(qpos, qvel)

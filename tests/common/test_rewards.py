@@ -11,7 +11,7 @@ from common.config import ConfigError, from_dict
 from common.maths.rotations import quat_from_axis_angle, quat_mul
 from common.motion.dataset import load_motions
 from common.sim.rewards import DEFAULT_SCALES, RewardConfig, TrackingReward
-from common.sim.tracking_rewards import REWARD_TERMS, TERM_FUNCTIONS, RewardModel
+from common.sim.tracking_rewards import REWARD_TERMS, TERM_FUNCTIONS, Derived, RewardModel, prepare, term_errors
 
 # DeepMimic's joint weights of humanoid3d sum to 4.8 (pelvis 1, torso 0.5, head 0.3, thighs 0.5, shins 0.3,
 # feet 0.2, upper arms 0.3, lower arms 0.2, hands 0).
@@ -115,6 +115,28 @@ def test_reward_combines_terms_by_hand(humanoid: Humanoid, ref: CharacterState, 
         np.testing.assert_allclose(perfect, 1.0)
         for v in perfect_terms.values():
             np.testing.assert_allclose(v, 1.0)
+
+
+def test_shared_derivations_give_the_terms_to_the_bit(humanoid: Humanoid) -> None:
+    """The reward derives each state's joint-local rotations, centre-of-mass velocity and effectors once and shares
+    them between terms, the reference's ahead of the physics (prepare): the same numbers as each term on its own."""
+    lib = load_motions(["walk", "run"], humanoid)
+    rng = np.random.default_rng(0)
+    ref = lib.query(rng.integers(0, 2, 40), rng.uniform(0.0, 3.0, 40))
+    sim = lib.query(rng.integers(0, 2, 40), rng.uniform(0.0, 3.0, 40))
+    model = RewardModel.from_humanoid(humanoid)
+    alone = {k: f(sim, ref, model) for k, f in TERM_FUNCTIONS.items()}
+    for prepared in (Derived(ref, model), prepare(REWARD_TERMS, ref, model)):
+        shared = term_errors(REWARD_TERMS, Derived(sim, model), prepared)
+        for k in REWARD_TERMS:
+            np.testing.assert_array_equal(shared[k], alone[k], err_msg=k)
+    for preset in ("deepmimic", "parc"):
+        fn = TrackingReward(humanoid, RewardConfig(preset=preset))
+        reward, terms = fn(sim, ref)
+        reward_prepared, terms_prepared = fn(sim, fn.prepare(ref))
+        np.testing.assert_array_equal(reward_prepared, reward)
+        for k in terms:
+            np.testing.assert_array_equal(terms_prepared[k], terms[k])
 
 
 def test_presets_and_overrides() -> None:
