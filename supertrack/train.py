@@ -131,8 +131,9 @@ def build_parser() -> argparse.ArgumentParser:
     return COMMAND.parser()
 
 
-def run(argv: Sequence[str] | None = None) -> EvalResult:
-    """Parses ``argv``, trains to the configured budget and returns the final evaluation."""
+def run(argv: Sequence[str] | None = None) -> EvalResult | None:
+    """Parses ``argv``, trains to the configured budget and returns the final evaluation (None on a data-parallel
+    run's ranks other than 0)."""
     return train_main(COMMAND, argv)
 
 

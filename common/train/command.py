@@ -108,8 +108,9 @@ class GracefulStop:
         print("\nstopping after this iteration (Ctrl-C again to abort without saving)", file=sys.stderr)
 
 
-def train_main(command: TrainingCommand, argv: Sequence[str] | None = None) -> EvalResult:
-    """Parses ``argv``, trains ``command``'s learner to its budget and returns the final evaluation.
+def train_main(command: TrainingCommand, argv: Sequence[str] | None = None) -> EvalResult | None:
+    """Parses ``argv``, trains ``command``'s learner to its budget and returns the final evaluation (None on the ranks
+    other than 0 of a data-parallel run, which do not evaluate).
 
     Bad options or inputs end in one line and exit status 2 with nothing written (the run directory is created only
     once the config, the motions, ``--out`` and the learner are accepted); a failure during the run (a full disk, a
