@@ -13,6 +13,8 @@ during the run); a bug keeps its traceback (:mod:`common.errors`).
 from __future__ import annotations
 
 import argparse
+import os
+import shlex
 import signal
 import sys
 from collections.abc import Callable, Sequence
@@ -137,6 +139,16 @@ def _rank_device(cfg: Any, world: World, config_path: str) -> Any:
     return replace(cfg, train=replace(cfg.train, device=device))
 
 
+def _launch_info(command: TrainingCommand, world: World) -> dict[str, Any]:
+    """run_info.json's record of a data-parallel launch: the world size and the command as torchrun ran it (a
+    rank's own argv names the module's file)."""
+    if not world.distributed:
+        return {}
+    per_node = os.environ.get("LOCAL_WORLD_SIZE", str(world.size))
+    return {"world_size": world.size,
+            "command": f"torchrun --nproc_per_node={per_node} -m {command.name}.train {shlex.join(sys.argv[1:])}"}
+
+
 def _train(command: TrainingCommand, argv: Sequence[str] | None, world: World) -> EvalResult | None:
     args = command.parser().parse_args(argv)
     prepared = command.prepare(args) if command.prepare is not None else None
@@ -161,8 +173,7 @@ def _train(command: TrainingCommand, argv: Sequence[str] | None, world: World) -
     try:
         if world.is_main:
             info = command.info(prepared) if command.info is not None else {}
-            start(saved_cfg, run_dir, library, command.name,
-                  {**info, **({"world_size": world.size} if world.distributed else {})})  # fmt: skip
+            start(saved_cfg, run_dir, library, command.name, {**info, **_launch_info(command, world)})
         trainer = Trainer(learner, cfg.train, run_dir, library, humanoid, compat_meta(cfg, humanoid, command.name),
                           command.name, rng, compat_meta(command.config_cls(), humanoid, command.name),
                           world)  # fmt: skip

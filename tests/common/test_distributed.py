@@ -4,6 +4,7 @@ resume with another number of ranks, rank 0 alone writing."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -170,6 +171,8 @@ def test_only_rank_zero_writes(runs: dict[str, Path]) -> None:
     iterations = [r["iteration"] for r in read_metrics(run / "metrics.jsonl")]
     logged = [i for i in iterations if i != iterations[-1]]
     assert logged == sorted(set(logged)) and iterations[-1] == 8
+    info = json.loads((run / "run_info.json").read_text())
+    assert info["world_size"] == 2 and info["command"].startswith("torchrun --nproc_per_node=2 -m supertrack.train --")
     files = sorted(p.relative_to(run).as_posix() for p in run.rglob("*") if p.is_file() and p.parent.name != "tb")
     assert files == ["checkpoints/ckpt_00000007.pt", "checkpoints/ckpt_00000008.pt", "checkpoints/latest.json",
                      "config.yaml", "metrics.jsonl", "run_info.json"]  # fmt: skip
