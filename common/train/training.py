@@ -185,16 +185,13 @@ class Trainer:
 
         A data-parallel run's checkpoint also holds ``world_size`` and, under ``ranks``, the learner state and random
         state of ranks 1 .. N - 1 (their gyms, buffers and generators; the networks are rank 0's everywhere)."""
-        learner, rng = self.learner.state_dict(), rng_state(self.rng)
+        state = {"meta": self.meta, "iteration": self.iteration, "samples": self.samples,
+                 "train_seconds": self.train_seconds, "learner": self.learner.state_dict(),
+                 "rng": rng_state(self.rng)}  # fmt: skip
         if not self.world.distributed:
-            return {"meta": self.meta, "iteration": self.iteration, "samples": self.samples,
-                    "train_seconds": self.train_seconds, "learner": learner, "rng": rng}  # fmt: skip
-        ranks = self.world.gather_to_main({"learner": learner, "rng": rng})
-        if ranks is None:
-            return None
-        return {"meta": self.meta, "iteration": self.iteration, "samples": self.samples,
-                "train_seconds": self.train_seconds, "learner": learner, "rng": rng, "world_size": self.world.size,
-                "ranks": ranks[1:]}  # fmt: skip
+            return state
+        ranks = self.world.gather_to_main({"learner": state["learner"], "rng": state["rng"]})
+        return None if ranks is None else {**state, "world_size": self.world.size, "ranks": ranks[1:]}
 
     def resume(self) -> None:
         """Restores the newest intact checkpoint (saying which, and why any newer one was passed over). Every rank
