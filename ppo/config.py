@@ -91,6 +91,15 @@ class PPOConfig:
         max_grad_norm: Clip the gradient norm of the policy and of the value network, each, to this; None: no
             clipping.
         target_kl: Stop the epochs of an iteration early once the mean approx. KL exceeds this; None: never.
+        schedule: ``fixed`` keeps the learning rates; ``adaptive`` is rsl_rl's KL-adaptive rule: before each
+            minibatch step, the mean KL(pi_old || pi) of the minibatch's Gaussians (pi_old: the policy that collected
+            the rollout) is compared with ``desired_kl``: above 2 x desired both rates are divided by
+            ``lr_factor``, below desired / 2 multiplied by it, the actor's kept in [min_lr, max_lr] (the critic's
+            keeps its ratio to the actor's).
+        desired_kl: The KL per update the adaptive schedule aims at (rsl_rl: 0.01).
+        lr_factor: The adaptive schedule's step (rsl_rl: 1.5).
+        min_lr: Lower bound of the actor's adaptive rate (rsl_rl: 1e-5).
+        max_lr: Upper bound of the actor's adaptive rate (rsl_rl: 1e-2).
     """
 
     rollout_length: int = 8
@@ -110,6 +119,11 @@ class PPOConfig:
     action_bound: float = 2.0
     max_grad_norm: float | None = 1.0
     target_kl: float | None = None
+    schedule: Literal["fixed", "adaptive"] = "fixed"
+    desired_kl: float = 0.01
+    lr_factor: float = 1.5
+    min_lr: float = 1e-5
+    max_lr: float = 1e-2
 
     def __post_init__(self) -> None:
         if self.rollout_length < 1 or self.epochs < 1 or self.minibatch_size < 1:
@@ -118,6 +132,9 @@ class PPOConfig:
             raise ValueError(f"gamma and lam must lie in [0, 1], got {self.gamma}, {self.lam}")
         if self.clip_ratio <= 0 or self.actor_lr <= 0 or self.critic_lr <= 0:
             raise ValueError("clip_ratio, actor_lr and critic_lr must be positive")
+        if self.desired_kl <= 0 or self.lr_factor <= 1.0 or not 0 < self.min_lr <= self.max_lr:
+            raise ValueError(f"the adaptive schedule needs desired_kl > 0, lr_factor > 1 and 0 < min_lr <= max_lr, got "
+                             f"{self.desired_kl}, {self.lr_factor}, {self.min_lr}, {self.max_lr}")  # fmt: skip
 
 
 @dataclass(frozen=True)

@@ -42,7 +42,7 @@ from ppo.amp import AMP
 from ppo.amp_data import AMPFeatures
 from ppo.config import PPOTrackerConfig
 from ppo.gae import gae
-from ppo.losses import ppo_loss
+from ppo.losses import adapted_learning_rate, gaussian_kl, ppo_loss
 from ppo.networks import ActorCritic
 from ppo.normalizer import RunningNormalizer, combine_moments, normalized_mask
 
@@ -217,12 +217,21 @@ class PPOLearner:
         size = batch["obs"].shape[0]
         sums: dict[str, float] = {}
         steps = 0
+        # The Gaussians of the policy that collected the rollout (the weights of this update's start), for the exact
+        # KL of each minibatch; the adaptive schedule reads it.
+        with torch.no_grad():
+            old_mean, old_log_std = self.net.actor(batch["obs"]), self.net.log_std.detach().clone()
         for _ in range(p.epochs):
             order = torch.as_tensor(self.rng.permutation(size), device=self.device)
             epoch_kl = []
             for idx in order.split(p.minibatch_size):
                 log_prob, entropy, mean = self.net.evaluate(batch["obs"][idx], batch["action"][idx])
                 values = self.net.value(batch["obs"][idx])
+                with torch.no_grad():
+                    kl = float(gaussian_kl(old_mean[idx], old_log_std, mean, self.net.log_std).mean())
+                if p.schedule == "adaptive":
+                    # rsl_rl: the KL averaged over the ranks, so that every rank keeps the same rates
+                    self._scale_learning_rates(adapted_learning_rate(self.actor_lr, self.world.mean(kl), p))
                 loss, metrics = ppo_loss(
                     log_prob, entropy, mean, values, batch["log_prob"][idx], batch["value"][idx],
                     batch["advantage"][idx], batch["return"][idx], p,
@@ -246,6 +255,7 @@ class PPOLearner:
                 self.optimizer.step()
                 for k, v in metrics.items():
                     sums[k] = sums.get(k, 0.0) + float(v)
+                sums["kl"] = sums.get("kl", 0.0) + kl
                 steps += 1
                 epoch_kl.append(float(metrics["approx_kl"]))
             if p.target_kl is not None and self.world.mean(float(np.mean(epoch_kl)) if epoch_kl else 0.0) > p.target_kl:
@@ -256,9 +266,21 @@ class PPOLearner:
             out.update(self.amp.update())
         out["losses/steps"] = float(steps)
         out["charts/action_std"] = float(torch.exp(self.net.log_std).mean())
+        out["charts/learning_rate"] = self.actor_lr
         out.update(self.rollout_stats)
         out.update(self.motion_weights.charts())
         return out
+
+    @property
+    def actor_lr(self) -> float:
+        """The actor's learning rate now (the optimiser's first group; saved with the optimiser's state)."""
+        return float(self.optimizer.param_groups[0]["lr"])
+
+    def _scale_learning_rates(self, actor_lr: float) -> None:
+        """Sets the actor's rate to ``actor_lr`` and the critic's to keep its configured ratio to the actor's."""
+        p = self.config.ppo
+        self.optimizer.param_groups[0]["lr"] = actor_lr
+        self.optimizer.param_groups[1]["lr"] = actor_lr * p.critic_lr / p.actor_lr
 
     # ----------------------------------------------------------------------------------------------- evaluation
     def policy(self) -> Policy:

@@ -103,3 +103,23 @@ def ppo_loss(
         **policy_metrics, **value_metrics, **bound_metrics,
     }  # fmt: skip
     return total, metrics
+
+
+def gaussian_kl(
+    old_mean: torch.Tensor, old_log_std: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor
+) -> torch.Tensor:
+    """KL(N(old_mean, old_std) || N(mean, std)) of diagonal Gaussians, summed over the A action dims:
+    sum(log(std / old_std) + (old_std^2 + (old_mean - mean)^2) / (2 std^2) - 1/2). Means (B, A), log-stds (A,) or
+    (B, A). Shape: (B,)."""
+    var, old_var = torch.exp(2.0 * log_std), torch.exp(2.0 * old_log_std)
+    return (log_std - old_log_std + (old_var + (old_mean - mean).pow(2)) / (2.0 * var) - 0.5).sum(dim=-1)
+
+
+def adapted_learning_rate(lr: float, kl: float, config: PPOConfig) -> float:
+    """rsl_rl's KL-adaptive rule for one minibatch: ``lr / lr_factor`` when ``kl`` > 2 ``desired_kl``, ``lr x
+    lr_factor`` when 0 < ``kl`` < ``desired_kl`` / 2, else ``lr``; kept in [min_lr, max_lr]."""
+    if kl > 2.0 * config.desired_kl:
+        return max(config.min_lr, lr / config.lr_factor)
+    if 0.0 < kl < 0.5 * config.desired_kl:
+        return min(config.max_lr, lr * config.lr_factor)
+    return lr

@@ -270,6 +270,9 @@ def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]],
     if parity:
         lines += ["## Samples and wall-clock to reach the other method's final MPJPE-g (logged evaluations)", "",
                   parity, ""]  # fmt: skip
+    updates = tables.update_statistics_table(report.runs)
+    if updates:
+        lines += ["## PPO's update statistics (from the training logs)", "", updates, ""]
     wm = tables.world_model_table(report.runs)
     lines += ["## World-model diagnostics (SuperTrack)", ""]
     if wm:

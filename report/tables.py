@@ -198,6 +198,35 @@ def world_model_table(runs: list[Run]) -> str | None:
     return table(["run", "horizon (frames)", "position error", "at samples"], rows) if rows else None
 
 
+# PPO's update statistics (both PPO arms log them under these names): what says whether an update stays in PPO's
+# normal regime (approximate KL per update about 0.01-0.03, a clip fraction under about 0.2).
+UPDATE_STATISTICS = (
+    ("approx. KL (k3)", "losses/approx_kl"), ("KL of the Gaussians", "losses/kl"),
+    ("clip fraction", "losses/clip_frac"), ("explained variance", "charts/explained_variance"),
+    ("actor learning rate", "charts/learning_rate"),
+)  # fmt: skip
+
+
+def update_statistics_table(runs: list[Run]) -> str | None:
+    """Median of each of :data:`UPDATE_STATISTICS` over the logged iterations of the last half of each run's training
+    wall-clock (the first and last value beside it); None when no run logged any."""
+    rows = []
+    for run in runs:
+        cells, found = [], False
+        for _, key in UPDATE_STATISTICS:
+            _, seconds, values = run.curve(key)
+            if not values:
+                cells.append("-")
+                continue
+            found = True
+            half = [v for t, v in zip(seconds, values, strict=True) if t >= seconds[-1] / 2]
+            cells.append(f"{fmt(float(np.median(half)))} ({fmt(values[0])} -> {fmt(values[-1])})")
+        if found:
+            rows.append([run.label, *cells])
+    header = ["run", *(f"{name}: median, last half (first -> last)" for name, _ in UPDATE_STATISTICS)]
+    return table(header, rows) if rows else None
+
+
 def runs_table(runs: list[Run]) -> str:
     """Machine, versions, seed and checkpoint of every run."""
     rows = []

@@ -90,3 +90,31 @@ def test_deterministic_policy_is_a_frozen_snapshot(learner: PPOLearner) -> None:
     reference = result.ref_next.qpos[:, learner.hinge_qpos]
     assert np.abs(targets - reference).max() < 0.05
     assert learner.observe(result).shape == (8, learner.obs_size)
+
+
+def test_adaptive_schedule_moves_both_rates_by_the_measured_kl() -> None:
+    # An actor rate far too high for desired_kl 1e-6: every minibatch after the first overshoots, so the rates fall by
+    # 1.5 per minibatch step after the first of the update, the critic's keeping its ratio of 10.
+    cfg = load_config(PPOTrackerConfig, DEBUG, ["ppo.schedule=adaptive", "ppo.desired_kl=1e-6", "ppo.actor_lr=1e-2",
+                                                "ppo.critic_lr=1e-1"])  # fmt: skip
+    humanoid = Humanoid(cfg.gym.physics)
+    torch.manual_seed(0)
+    learner = PPOLearner(cfg, load_motions(["walk"], humanoid), humanoid, np.random.default_rng(0))
+    try:
+        learner.collect()
+        out = learner.update()
+    finally:
+        learner.close()
+    steps = int(out["losses/steps"])
+    assert steps == cfg.ppo.epochs * (cfg.ppo.rollout_length * cfg.gym.num_envs // cfg.ppo.minibatch_size) > 1
+    assert out["losses/kl"] > 2e-6
+    assert out["charts/learning_rate"] == pytest.approx(1e-2 / 1.5 ** (steps - 1))
+    groups = learner.optimizer.param_groups
+    assert groups[1]["lr"] == pytest.approx(10 * groups[0]["lr"])
+
+
+def test_fixed_schedule_keeps_the_rates_and_logs_the_kl(learner: PPOLearner) -> None:
+    learner.collect()
+    out = learner.update()
+    assert out["charts/learning_rate"] == learner.config.ppo.actor_lr
+    assert out["losses/kl"] > 0.0 and np.isfinite(out["losses/approx_kl"])

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from ppo.config import PPOConfig
-from ppo.losses import bound_loss, ppo_loss, surrogate_loss, value_loss
+from ppo.losses import adapted_learning_rate, bound_loss, gaussian_kl, ppo_loss, surrogate_loss, value_loss
 from ppo.networks import gaussian_entropy, gaussian_log_prob
 
 RATIOS = torch.tensor([0.5, 1.0, 1.5, 1.1], dtype=torch.float64)
@@ -77,3 +77,29 @@ def test_gaussian_log_prob_and_entropy_hand_computed() -> None:
     ent = gaussian_entropy(torch.zeros(3), batch=5)
     assert ent.shape == (5,)
     assert ent[0].item() == pytest.approx(3 * 0.5 * math.log(2 * math.pi * math.e))
+
+
+def test_gaussian_kl_hand_computed() -> None:
+    # One dim: old N(0, 1), new N(0.5, 2): log 2 + (1 + 0.25) / 8 - 0.5 = 0.693147 + 0.15625 - 0.5 = 0.349397.
+    # A second dim equal in both adds 0; the same Gaussian twice gives 0.
+    old_mean, mean = torch.tensor([[0.0, 0.3]]), torch.tensor([[0.5, 0.3]])
+    old_log_std, log_std = torch.tensor([0.0, -1.0]), torch.tensor([math.log(2.0), -1.0])
+    assert gaussian_kl(old_mean, old_log_std, mean, log_std).item() == pytest.approx(math.log(2.0) + 1.25 / 8 - 0.5)
+    assert gaussian_kl(mean, log_std, mean, log_std).item() == pytest.approx(0.0, abs=1e-7)
+    # Fixed std sigma: the KL is sum (delta mu)^2 / (2 sigma^2): 28 dims moved by 0.02 at sigma 0.2 -> 0.14
+    moved = gaussian_kl(torch.zeros(1, 28), torch.full((28,), math.log(0.2)), torch.full((1, 28), 0.02),
+                        torch.full((28,), math.log(0.2)))  # fmt: skip
+    assert moved.item() == pytest.approx(28 * 0.02**2 / (2 * 0.04))
+
+
+def test_adaptive_learning_rate_rule_of_rsl_rl() -> None:
+    cfg = PPOConfig(schedule="adaptive", desired_kl=0.01, lr_factor=1.5, min_lr=1e-5, max_lr=1e-2)
+    assert adapted_learning_rate(1e-3, 0.021, cfg) == pytest.approx(1e-3 / 1.5)  # above 2 x desired: down
+    assert adapted_learning_rate(1e-3, 0.02, cfg) == 1e-3  # at 2 x desired: kept
+    assert adapted_learning_rate(1e-3, 0.01, cfg) == 1e-3  # in the band: kept
+    assert adapted_learning_rate(1e-3, 0.004, cfg) == pytest.approx(1.5e-3)  # below desired / 2: up
+    assert adapted_learning_rate(1e-3, 0.0, cfg) == 1e-3  # no change of the policy yet (first minibatch): kept
+    assert adapted_learning_rate(1.2e-5, 1.0, cfg) == 1e-5  # floor
+    assert adapted_learning_rate(9e-3, 1e-4, cfg) == 1e-2  # ceiling
+    with pytest.raises(ValueError, match="adaptive schedule"):
+        PPOConfig(lr_factor=1.0)

@@ -88,3 +88,21 @@ def test_parity_table_by_hand() -> None:
                              "sample_ratio": 0.2, "time_ratio": 0.2}  # fmt: skip
     assert st["runs"][1]["samples"] is None and st["runs"][1]["sample_ratio"] is None
     assert parity(runs[:2]) == []
+
+
+def test_update_statistics_table_takes_the_median_of_the_last_half() -> None:
+    from report.tables import update_statistics_table
+
+    # Iterations logged at 10..100 s: the last half (>= 50 s) holds the values at 50..100 s.
+    metrics = [{"samples": 100 * t, "wall_clock_s": float(t), "losses/approx_kl": t / 1000.0,
+                "losses/clip_frac": 0.5 if t < 50 else 0.1} for t in range(10, 101, 10)]  # fmt: skip
+    ppo = Run(path=Path("/runs/ppo-0"), label="ppo:ppo-0", learner="ppo", config={}, info={}, metrics=metrics,
+              checkpoint=Path("c.pt"), iteration=1, samples=10_000, train_seconds=100.0)  # fmt: skip
+    supertrack = _run("supertrack", 0, [(100, 10.0, 500.0)])
+    md = update_statistics_table([ppo, supertrack])
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in md.splitlines()[2:]]
+    assert len(rows) == 1 and rows[0][0] == "ppo:ppo-0"  # SuperTrack logs no PPO statistics
+    assert rows[0][1] == "0.075 (0.01 -> 0.1)"  # median of 0.05 ... 0.1
+    assert rows[0][3] == "0.1 (0.5 -> 0.1)"
+    assert rows[0][2] == "-"
+    assert update_statistics_table([supertrack]) is None
