@@ -41,6 +41,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from common.strict_json import parse_json  # noqa: E402
+
 LOCOMOTION = ("walk", "jog", "run", "stealthy_walk", "zombie_walk")
 # Training settings of every mode: no evaluation until the end (then a short one), a log line every 10 iterations.
 COMMON = ("--set", "train.eval_every_minutes=100000", "--set", "train.eval.starts_per_clip=1",
@@ -75,7 +79,7 @@ def train(learner: str, mode: str, minutes: float, motions: list[str], out: Path
     done = subprocess.run([sys.executable, *launcher, *args], cwd=ROOT, env=env, capture_output=True, text=True)
     if done.returncode != 0:
         raise SystemExit(f"{learner} {mode} failed:\n{done.stderr[-3000:]}")
-    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    records = [parse_json(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
     logs = [r for r in records if "perf/samples_per_s" in r]
     if len(logs) < 2:
         raise SystemExit(f"{learner} {mode}: {len(logs)} log line(s) in {minutes} min: too short, raise --minutes")
@@ -105,7 +109,7 @@ def probe(sizes: list[int], repeats: int) -> dict[int, float]:
         done = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
         if done.returncode != 0:
             raise SystemExit(f"all-reduce probe failed:\n{done.stderr[-3000:]}")
-        return {int(k): v for k, v in json.loads(result.read_text()).items()}
+        return {int(k): v for k, v in parse_json(result.read_text()).items()}
 
 
 def _probe_rank(path: str, sizes: list[int], repeats: int) -> None:

@@ -20,6 +20,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from common.strict_json import parse_json  # noqa: E402
+
 EVAL = (("eval/mpjpe_g", "MPJPE-g", 1), ("eval/mpjpe_l", "MPJPE-l", 1), ("eval/survival", "surv", 2),
         ("eval/success", "succ", 2))  # fmt: skip
 TRAIN = (("charts/episode_length", "ep len", 1), ("charts/terminated_share", "failed", 2),
@@ -34,7 +38,7 @@ def read_metrics(path: Path) -> list[dict[str, Any]]:
     for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
         if line.strip():
             try:
-                records.append(json.loads(line))
+                records.append(parse_json(line))
             except json.JSONDecodeError as e:
                 raise ValueError(f"{path}:{n}: not a JSON record ({e.msg})") from None
     return records

@@ -20,7 +20,7 @@ import os
 import re
 import tempfile
 import types
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Hashable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_hints
 
@@ -37,7 +37,23 @@ class ConfigError(ValueError):
 
 
 class _Loader(yaml.SafeLoader):
-    """Safe loader that also resolves YAML 1.2 floats without a dot (``1e-3``, ``5E+4``)."""
+    """Safe loader that also resolves YAML 1.2 floats without a dot (``1e-3``, ``5E+4``) and refuses a key given twice
+    in one mapping (PyYAML keeps the last value without a word, so ``{num_envs: 8, num_envs: 16}`` would train 16)."""
+
+    def construct_mapping(self, node: yaml.Node, deep: bool = False) -> dict[Any, Any]:
+        if isinstance(node, yaml.MappingNode):
+            first: dict[Any, Any] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":  # ``<<: *base``, whose keys this mapping may override
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                if not isinstance(key, Hashable):
+                    continue  # refused by the base class, naming it
+                if key in first:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"duplicate key {key!r} (first at line {first[key].line + 1})", key_node.start_mark)
+                first[key] = key_node.start_mark
+        return super().construct_mapping(node, deep=deep)
 
 
 _Loader.add_implicit_resolver(
@@ -146,7 +162,7 @@ def hdf5_output(path: str | Path) -> Iterator[h5py.File]:
         tmp.write_bytes(buffer.getbuffer())
 
 
-def load_config(cls: type[T], path: str | Path, overrides: Sequence[str] = ()) -> T:
+def load_config(cls: type[T], path: str | Path, overrides: Sequence[str] = (), within: str | Path | None = None) -> T:
     """Read a YAML config file, apply command-line overrides and build the dataclass.
 
     A file's keys start from the dataclass defaults, or, with a top-level ``base: other.yaml`` (a path relative to
@@ -157,15 +173,17 @@ def load_config(cls: type[T], path: str | Path, overrides: Sequence[str] = ()) -
         cls: Dataclass type of the config.
         path: YAML file holding a mapping (an empty file means all defaults).
         overrides: ``"section.key=value"`` strings; ``value`` is parsed as YAML (``train.lr=1e-3`` is a float).
+        within: The folder every ``base`` file must lie in (a run directory's ``config.yaml`` names nothing outside
+            its run); None: anywhere.
 
     Returns:
         The config instance.
 
     Raises:
         ConfigError: On unreadable YAML, a malformed or unknown override, unknown keys, missing required
-            keys, wrong types or a failing ``__post_init__``.
+            keys, wrong types, a failing ``__post_init__`` or a ``base`` outside ``within``.
     """
-    data = _read_mapping(cls, Path(path), ())
+    data = _read_mapping(cls, Path(path), (), None if within is None else Path(within).resolve())
     data = apply_overrides(cls, data, overrides)
     return from_dict(cls, data, source=str(path))
 
@@ -173,7 +191,7 @@ def load_config(cls: type[T], path: str | Path, overrides: Sequence[str] = ()) -
 BASE_KEY = "base"
 
 
-def _read_mapping(cls: type, path: Path, chain: tuple[Path, ...]) -> dict[str, Any]:
+def _read_mapping(cls: type, path: Path, chain: tuple[Path, ...], within: Path | None) -> dict[str, Any]:
     """The top-level mapping of a config file with its ``base`` chain merged in (the base first)."""
     source = str(path)
     if path.exists() and not path.is_file():  # a FIFO or a device would block or never end
@@ -196,11 +214,14 @@ def _read_mapping(cls: type, path: Path, chain: tuple[Path, ...]) -> dict[str, A
     if not isinstance(base, str) or not base:
         raise ConfigError(f"{source}: '{BASE_KEY}' must be the path of another config file, got {base!r}")
     base_path = (path.parent / base).resolve()
+    if within is not None and within not in base_path.parents:
+        raise ConfigError(f"{source}: '{BASE_KEY}: {base}' lies outside {within} (it resolves to {base_path}); a run "
+                          "directory's config names no file outside its run")  # fmt: skip
     if base_path in chain or base_path == path.resolve():
         raise ConfigError(f"{source}: '{BASE_KEY}: {base}' makes a cycle of base files")
     if not base_path.is_file():
         raise ConfigError(f"{source}: '{BASE_KEY}: {base}': no such file {base_path}")
-    return _merge(_read_mapping(cls, base_path, (*chain, path.resolve())), data)
+    return _merge(_read_mapping(cls, base_path, (*chain, path.resolve()), within), data)
 
 
 def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:

@@ -20,6 +20,7 @@ import contextlib
 import math
 import os
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import NoReturn
@@ -76,11 +77,28 @@ def one_line_errors(*expected: type[BaseException]) -> Iterator[None]:
     :class:`CommandError` with its own status; ``sys.exit("error: ...")`` with :data:`EXIT_BAD_INPUT`. Anything
     else propagates with its traceback.
 
+    A background thread that an ``OSError`` ends (TensorBoard's writer on a full disk) prints no traceback meanwhile:
+    the error is kept for the main thread, whose writer raises it at its next write or close (the run's one error
+    path, :func:`take_thread_failure`), or, if nothing took it, when the command's body returns. Any other exception
+    of a thread is a bug and keeps its traceback.
+
     Raises:
         CommandError: After printing its line to stderr.
     """
+    previous_hook = threading.excepthook
+
+    def keep_thread_failure(args: threading.ExceptHookArgs) -> None:
+        if isinstance(args.exc_value, OSError):
+            _thread_failures.append(args.exc_value)
+        else:
+            previous_hook(args)
+
+    threading.excepthook = keep_thread_failure
     try:
         yield
+        failure = take_thread_failure()
+        if failure is not None:
+            raise failure
     except CommandError as e:
         _print(e)
         raise
@@ -92,6 +110,22 @@ def one_line_errors(*expected: type[BaseException]) -> Iterator[None]:
         raise _print(CommandError(one_line(e), EXIT_BAD_INPUT)) from None
     except OSError as e:
         raise _print(CommandError(os_error_line(e), EXIT_RUN_FAILED)) from None
+    finally:
+        threading.excepthook = previous_hook
+        _thread_failures.clear()
+
+
+# OSErrors that ended background threads while a command ran (one_line_errors), oldest first.
+_thread_failures: list[OSError] = []
+
+
+def take_thread_failure() -> OSError | None:
+    """The first ``OSError`` that ended a background thread while a command runs under :func:`one_line_errors` (which
+    kept it from printing a traceback); None if none. The writer whose thread it was raises it, naming its file;
+    taking it forgets every kept one."""
+    failure = _thread_failures[0] if _thread_failures else None
+    _thread_failures.clear()
+    return failure
 
 
 def exit_status(body: Callable[[], int], *expected: type[BaseException]) -> int:

@@ -446,9 +446,20 @@ def _main(argv: Sequence[str] | None) -> None:
             reduced_indices(humanoid, cfg.optimise)  # names of features, gain and offset actuators
         except ValueError as e:
             raise ConfigError(f"{args.config}: {e}") from None
-        run_dir = RunDir(args.out or f"runs/{LEARNER}-{datetime.now().strftime('%Y%m%d-%H%M%S')}", resume=False)
+        run_dir = RunDir(args.out or f"runs/{LEARNER}-{datetime.now().strftime('%Y%m%d-%H%M%S')}", resume=False,
+                         create=False)  # fmt: skip
     except OSError as e:  # a config or motion file that cannot be read
         fail(os_error_line(e))
+    run_dir.lock()  # refused in one line while another command writes it
+    try:
+        run_dir.create()
+        _track(cfg, humanoid, library, run_dir)
+    finally:
+        run_dir.unlock()
+
+
+def _track(cfg: SamconConfig, humanoid: Humanoid, library: MotionLibrary, run_dir: RunDir) -> None:
+    """Tracks every clip into the created and locked ``run_dir``: its config, run info, plans and results."""
     try:
         run_dir.save_config(cfg)
         info = run_dir.write_run_info({"learner": LEARNER, "seed": cfg.train.seed, "motions": list(library.names)})

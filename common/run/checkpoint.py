@@ -37,6 +37,7 @@ except ImportError:  # numpy < 2
     from numpy.core import multiarray as _np_multiarray
 
 from common.config import atomic_output
+from common.strict_json import parse_json
 
 POINTER_NAME = "latest.json"
 LEGACY_LATEST_NAME = "latest.pt"
@@ -238,7 +239,7 @@ def read_pointer(checkpoint_dir: Path) -> dict[str, Any]:
     """
     path = checkpoint_dir / POINTER_NAME
     try:
-        pointer = json.loads(path.read_text(encoding="utf-8"))
+        pointer = parse_json(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         return {}
     except (OSError, ValueError) as e:

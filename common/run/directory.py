@@ -25,7 +25,6 @@ import os
 import platform
 import random
 import re
-import shlex
 import sys
 from collections.abc import Mapping
 from datetime import datetime, timezone
@@ -50,6 +49,10 @@ from common.run.checkpoint import (
     set_aside,
     write_pointer,
 )
+from common.run.command_line import portable_command
+from common.run.contained import check_run_directory
+from common.run.lock import DirectoryLock
+from common.strict_json import parse_json
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +100,8 @@ def read_checkpoint(path: str | Path) -> tuple[Path, dict[str, Any]]:
         ``(file, state)``, the state on the CPU.
 
     Raises:
-        CheckpointError: Naming the file and the problem (no such file or run, damaged, refused).
+        CheckpointError: Naming the file and the problem (no such file or run, damaged, refused, a run holding a
+            link that leads outside it).
     """
     path = Path(path)
     if path.is_file():
@@ -106,6 +110,7 @@ def read_checkpoint(path: str | Path) -> tuple[Path, dict[str, Any]]:
         raise CheckpointError(f"{path}: no such checkpoint file or run directory")
     if not (path / "checkpoints").is_dir():
         raise CheckpointError(f"{path}: not a run directory (no checkpoints/)")
+    check_run_directory(path, CheckpointError)
     found, state, _ = load_newest_checkpoint(path / "checkpoints")
     return found, state
 
@@ -122,8 +127,8 @@ class RunDir:
 
     Raises:
         RunDirError: If ``path`` already holds a run and ``resume`` is False, ``resume`` is True and there is no
-            checkpoint to resume from, or ``path`` cannot be a directory of this user's (an existing file, inside a
-            file, not writable).
+            checkpoint to resume from, ``path`` cannot be a directory of this user's (an existing file, inside a
+            file, not writable), or it holds a link leading outside it (:mod:`common.run.contained`).
         ValueError: If ``keep_checkpoints < 1``.
     """
 
@@ -141,9 +146,11 @@ class RunDir:
         self.pointer_path = self.checkpoint_dir / POINTER_NAME
         self.start_time = datetime.now(timezone.utc)
         self._resume_info: dict[str, Any] | None = None
+        self._lock = DirectoryLock(self.path, RunDirError, "run directory")
         problem = output_dir_problem(self.path)
         if problem is not None:
             raise RunDirError(f"run directory {self.path}: {problem}")
+        check_run_directory(self.path, RunDirError)  # nothing it reads or writes may lie elsewhere
         holds_run = self.config_path.exists() or self.checkpoint_dir.exists()
         if holds_run and not resume:
             raise RunDirError(
@@ -168,6 +175,29 @@ class RunDir:
         except OSError as e:
             raise RunDirError(f"run directory {self.path}: cannot create it: {e.strerror or e}") from None
 
+    def lock(self) -> None:
+        """Makes the directory (not yet its ``checkpoints/``) and takes its lock until :meth:`unlock` or the process
+        ends (:mod:`common.run.lock`). A new run then looks again whether the directory holds a run: another command
+        may have started and finished one there since this one looked.
+
+        Raises:
+            RunDirError: If another process writes the directory (naming its id), a new run finds a run there now, or
+                the directory or its lock file cannot be made.
+        """
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+            self._lock.acquire()
+        except OSError as e:
+            raise RunDirError(f"run directory {self.path}: cannot lock it: {e.strerror or e}") from None
+        if not self.resume and (self.config_path.exists() or self.checkpoint_dir.exists()):
+            self.unlock()
+            raise RunDirError(f"run directory {self.path} already holds a run (another command wrote it meanwhile); "
+                              "pass --resume to continue it or choose another --out")  # fmt: skip
+
+    def unlock(self) -> None:
+        """Drops the lock taken by :meth:`lock` (nothing if none is held)."""
+        self._lock.release()
+
     def save_config(self, cfg: Any) -> None:
         """Write the resolved config dataclass to ``config.yaml`` (atomically)."""
         save_config(cfg, self.config_path)
@@ -185,7 +215,7 @@ class RunDir:
         Returns:
             The record written for this start.
         """
-        info = {**machine_info(), "command": shlex.join(sys.argv), "start_time": self.start_time.isoformat()}
+        info = {**machine_info(), "command": portable_command(sys.argv), "start_time": self.start_time.isoformat()}
         info.update(extra or {})
         if self.resume:
             self._resume_info = info  # written by confirm_resume: a resume that fails changes nothing
@@ -197,7 +227,7 @@ class RunDir:
         record: dict[str, Any] = info
         if self.resume and self.run_info_path.exists():
             try:
-                record = json.loads(self.run_info_path.read_text(encoding="utf-8"))
+                record = parse_json(self.run_info_path.read_text(encoding="utf-8"))
                 record.setdefault("resumes", []).append(info)
             except (OSError, ValueError, AttributeError) as e:  # kept as it is: it is the only record of the start
                 print(f"warning: {self.run_info_path}: unreadable ({e}); this resume is not recorded in it",
@@ -292,7 +322,7 @@ def load_run_checkpoint(config_cls: type, run_dir: str | Path, checkpoint: str |
         ValueError: Naming the checkpoint and the missing entry if the file is not this learner's checkpoint
             (:class:`CheckpointError` if it does not read).
     """
-    cfg = load_config(config_cls, Path(run_dir) / "config.yaml")
+    cfg = load_config(config_cls, Path(run_dir) / "config.yaml", within=run_dir)
     state = load_checkpoint_file(checkpoint, sha256=recorded_digest(Path(checkpoint)))
     learner = state.get("learner")
     if not isinstance(learner, Mapping):

@@ -20,7 +20,9 @@ from typing import Any, TextIO
 import tqdm
 
 from common.config import atomic_output
+from common.errors import one_line, take_thread_failure
 from common.run.directory import RunDir
+from common.strict_json import parse_json
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +46,10 @@ def _import_summary_writer() -> type | None:
 class MetricsLogger:
     """Append metrics to ``metrics.jsonl`` and, when available, TensorBoard (global step = samples).
 
+    A write that fails (a full disk) raises ``OSError`` naming ``metrics.jsonl`` or ``tb/``, at the record it failed
+    on: TensorBoard's writer thread is flushed after every record, and its failure, which a command keeps from
+    printing a traceback (:func:`common.errors.one_line_errors`), is raised here.
+
     Args:
         run_dir: A :class:`RunDir` or a directory path.
         tensorboard: Also write TensorBoard events under ``tb/`` if the package is installed.
@@ -60,6 +66,7 @@ class MetricsLogger:
         # Created at the first log so that a resume (truncate_after, then log) opens one events file, not two.
         self._writer: Any = None
         self._purge_step: int | None = None
+        self._failed = False  # a write failed: the error is on its way, close() adds none
 
     def log(self, step: int, metrics: Mapping[str, float], samples: int, wall_clock_s: float) -> dict[str, Any]:
         """Write one line ``{"iteration", "samples", "wall_clock_s", **metrics}``; non-finite values become null.
@@ -80,14 +87,28 @@ class MetricsLogger:
         record: dict[str, Any] = {"iteration": int(step), "samples": int(samples), "wall_clock_s": float(wall_clock_s)}
         # JSON has no NaN/Infinity; null keeps every line parseable by strict readers.
         record.update({k: v if math.isfinite(v) else None for k, v in values.items()})
-        self._file.write(json.dumps(record, allow_nan=False) + "\n")
-        self._file.flush()
-        if self._writer is None and self._writer_cls is not None:
-            self._writer = self._writer_cls(log_dir=str(self.tb_dir), purge_step=self._purge_step)
-        if self._writer is not None:
+        try:
+            self._file.write(json.dumps(record, allow_nan=False) + "\n")
+            self._file.flush()
+        except OSError as e:
+            raise self._failure(e, self.path) from None
+        if self._writer_cls is None:
+            return record
+        try:
+            if self._writer is None:
+                self._writer = self._writer_cls(log_dir=str(self.tb_dir), purge_step=self._purge_step)
             for key, value in values.items():
                 self._writer.add_scalar(key, value, global_step=int(samples))
+            self._writer.flush()  # a failure of its thread surfaces now, at this record
+        except OSError as e:
+            raise self._failure(e, self.tb_dir) from None
         return record
+
+    def _failure(self, e: OSError, path: Path) -> OSError:
+        """``e`` naming ``path`` (TensorBoard's thread names no file); later errors of the same cause are dropped."""
+        self._failed = True
+        take_thread_failure()  # the same error, taken here: the command is ending with it
+        return OSError(e.errno, e.strerror or one_line(e), str(path))
 
     def truncate_after(self, iteration: int) -> int:
         """Drop lines logged after ``iteration`` (on resume from a checkpoint of that iteration).
@@ -110,11 +131,30 @@ class MetricsLogger:
         return len(records) - len(kept)
 
     def close(self) -> None:
-        """Flush and close the files."""
-        self._file.close()
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
+        """Flush and close the files.
+
+        Raises:
+            OSError: Naming the file, if the last records cannot be written (none after a write that failed).
+        """
+        writer, self._writer = self._writer, None
+        failures: list[tuple[OSError, Path]] = []
+        for close, path in ((self._file.close, self.path), (writer.close if writer else None, self.tb_dir)):
+            try:
+                if close is not None:
+                    close()
+            except OSError as e:
+                failures.append((e, path))
+        failure = take_thread_failure()  # TensorBoard's thread, on its last records
+        if failure is not None:
+            failures.append((failure, self.tb_dir))
+        if failures and not self._failed:
+            raise self._failure(*failures[0])
+
+    def abandon(self) -> None:
+        """Closes the files after a failure that is on its way, raising nothing (that failure is the one to report)."""
+        self._failed = True
+        with contextlib.suppress(OSError):
+            self.close()
 
     def __enter__(self) -> MetricsLogger:
         return self
@@ -146,7 +186,7 @@ def read_metrics(path: str | Path) -> list[dict[str, Any]]:
     records = []
     for i, line in enumerate(lines):
         try:
-            records.append(json.loads(line))
+            records.append(parse_json(line))
         except json.JSONDecodeError as e:
             if i == len(lines) - 1:
                 log.warning("%s: skipping cut-off last line", path)

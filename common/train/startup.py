@@ -23,6 +23,7 @@ from common.errors import EXIT_RUN_FAILED, CommandError, non_negative_float, non
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
+from common.run.contained import check_run_directory
 from common.run.directory import RunDir, RunDirError
 from common.train.training import check_device
 
@@ -93,10 +94,19 @@ def resolve_config(cls: type, args: argparse.Namespace) -> Any:
     """Loads the config file with ``--set`` overrides and the dedicated options applied.
 
     Without ``--config`` it is the command's default, or with ``--resume`` the run's own ``config.yaml`` (the
-    resolved config it was started with); ``args.config`` is set to the file read, for messages."""
+    resolved config it was started with); ``args.config`` is set to the file read, for messages.
+
+    Raises:
+        ConfigError: As :func:`common.config.load_config`.
+        RunDirError: If the run to resume holds a link leading outside it (read before its config is).
+    """
+    within = None
     if args.config is None:
         saved = Path(args.out) / "config.yaml" if args.resume and args.out else None
-        args.config = str(saved) if saved is not None and saved.is_file() else args.default_config
+        if saved is not None:
+            check_run_directory(args.out, RunDirError)
+            within = args.out if saved.is_file() else None
+        args.config = str(saved) if within is not None else args.default_config
     else:
         args.config = str(find_config(args.config, args.config_command))
     overrides = list(args.overrides)
@@ -107,7 +117,7 @@ def resolve_config(cls: type, args: argparse.Namespace) -> Any:
         value = getattr(args, option)
         if value is not None:
             overrides.append(f"{key}={value}")
-    return load_config(cls, args.config, overrides)
+    return load_config(cls, args.config, overrides, within=within)
 
 
 def prepare(
@@ -152,17 +162,23 @@ def prepare(
 
 def start(cfg: Any, run_dir: RunDir, library: MotionLibrary, learner_name: str,
           info: Mapping[str, Any] | None = None) -> None:  # fmt: skip
-    """Creates the run directory and writes ``config.yaml`` (a new run) and ``run_info.json`` (``info`` added).
+    """Creates and locks the run directory and writes ``config.yaml`` (a new run) and ``run_info.json`` (``info``
+    added). The lock is held until ``run_dir.unlock()`` or the end of the process (:meth:`RunDir.lock`).
 
     If that fails, what it made of a new run is removed again, so that the same ``--out`` can be used once the
-    cause is fixed.
+    cause is fixed; a directory that another command is writing is left as it is.
 
     Raises:
-        CommandError: If the directory cannot be made (exit status 2) or its files cannot be written (a full disk:
-            exit status 1).
+        CommandError: If the directory cannot be made or another command is writing it (exit status 2), or its files
+            cannot be written (a full disk: exit status 1).
     """
     # The highest folder this start makes (None: the run directory exists), removed again if the start fails.
     made = next((p for p in reversed([run_dir.path, *run_dir.path.absolute().parents]) if not p.exists()), None)
+    try:
+        run_dir.lock()
+    except RunDirError as e:
+        _remove_empty_folders(run_dir.path, made)
+        raise CommandError(str(e)) from None
     try:
         run_dir.create()
         if not run_dir.resume:
@@ -172,9 +188,24 @@ def start(cfg: Any, run_dir: RunDir, library: MotionLibrary, learner_name: str,
     except (RunDirError, OSError) as e:
         if not run_dir.resume:
             _undo_start(run_dir, made)
+        run_dir.unlock()
         if isinstance(e, RunDirError):
             raise CommandError(str(e)) from None
         raise CommandError(f"run directory {run_dir.path}: cannot write {os_error_line(e)}", EXIT_RUN_FAILED) from None
+
+
+def _remove_empty_folders(path: Path, made: Path | None) -> None:
+    """Removes ``path`` and its parents up to ``made`` while they are empty (folders a refused lock made; a folder
+    another command has filled meanwhile stays)."""
+    if made is None:
+        return
+    for folder in (path.absolute(), *path.absolute().parents):
+        try:
+            folder.rmdir()
+        except OSError:
+            return
+        if folder == made.absolute():
+            return
 
 
 def _undo_start(run_dir: RunDir, made: Path | None) -> None:

@@ -305,10 +305,14 @@ class Trainer:
                     final.update(self._evaluate())
                 if final:
                     logger.log(self.iteration, final, self.samples, self.train_seconds)
-        finally:
-            if lead:
+        except BaseException:
+            if lead:  # the failure on its way is the one to report: closing adds none
                 progress.close()
-                logger.close()
+                logger.abandon()
+            raise
+        if lead:
+            progress.close()
+            logger.close()
         return self.last_eval
 
     def _decide(self, stop: Callable[[], bool] | None, checkpoint: bool) -> dict[str, bool]:

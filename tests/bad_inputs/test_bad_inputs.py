@@ -110,10 +110,60 @@ def _make_inputs(ws: Path) -> None:
     info.write_text(json.dumps({k: v for k, v in json.loads(info.read_text(encoding="utf-8")).items()
                                 if k != "learner"}), encoding="utf-8")  # fmt: skip
     (made / "a_file").write_text("not a directory\n", encoding="utf-8")
+    _make_runs_naming_outside(ws, made, ppo_run, st_run)
+    _make_runs_repeating_a_key(made, ppo_run)
     readonly = made / "readonly"
     _copy_run(ppo_run, readonly / "ppo_run")
     for path in sorted(readonly.rglob("*"), reverse=True) + [readonly]:
         path.chmod(0o555 if path.is_dir() else 0o444)
+
+
+def _set_info(run: Path, **entries: Any) -> None:
+    info = run / "run_info.json"
+    info.write_text(json.dumps({**json.loads(info.read_text(encoding="utf-8")), **entries}), encoding="utf-8")
+
+
+def _link_out(entry: Path, target: Path) -> None:
+    """Replaces ``entry`` of a run by a link to ``target`` (outside the run), a copy of what ``entry`` held."""
+    if entry.is_dir():
+        shutil.copytree(entry, target)
+        shutil.rmtree(entry)
+    else:
+        shutil.copy(entry, target)
+        entry.unlink()
+    entry.symlink_to(target)
+
+
+def _make_runs_naming_outside(ws: Path, made: Path, ppo_run: Path, st_run: Path) -> None:
+    """Runs that name a file outside themselves (common.run.contained). What they name outside is a good copy of what
+    they held, so that only the place refuses it."""
+    outside = ws / "outside"
+    outside.mkdir()
+    _set_info(_copy_run(ppo_run, made / "policy_file_up_run"), policy_file="../../../../etc/passwd")
+    _set_info(_copy_run(ppo_run, made / "policy_file_absolute_run"), policy_file="/etc/passwd")
+    _link_out(_only_checkpoint(_copy_run(ppo_run, made / "linked_checkpoint_run")), outside / "ckpt.pt")
+    _link_out(_copy_run(ppo_run, made / "linked_checkpoints_run") / "checkpoints", outside / "checkpoints")
+    _link_out(_copy_run(ppo_run, made / "linked_metrics_run") / "metrics.jsonl", outside / "metrics.jsonl")
+    _link_out(_copy_run(st_run, made / "linked_config_run") / "config.yaml", outside / "config.yaml")
+    _link_out(_only_checkpoint(_copy_run(st_run, made / "st_linked_checkpoint_run")), outside / "st_ckpt.pt")
+    config = _copy_run(ppo_run, made / "base_outside_run") / "config.yaml"
+    shutil.copy(config, outside / "base.yaml")
+    config.write_text("base: ../../outside/base.yaml\n" + config.read_text(encoding="utf-8"), encoding="utf-8")
+
+
+def _make_runs_repeating_a_key(made: Path, ppo_run: Path) -> None:
+    """Runs whose JSON or YAML gives a key twice in one mapping (read strictly: common.strict_json, parse_yaml)."""
+    info = _copy_run(ppo_run, made / "repeated_info_run") / "run_info.json"
+    text = info.read_text(encoding="utf-8")
+    assert '"learner": "ppo"' in text
+    info.write_text(text.replace('"learner": "ppo"', '"learner": "ppo",\n  "learner": "samcon"'), encoding="utf-8")
+    metrics = _copy_run(ppo_run, made / "repeated_metrics_run") / "metrics.jsonl"
+    metrics.write_text('{"iteration": 1, "samples": 64, "iteration": 2}\n' + metrics.read_text(encoding="utf-8"),
+                       encoding="utf-8")  # fmt: skip
+    config = _copy_run(ppo_run, made / "repeated_config_run") / "config.yaml"
+    text = config.read_text(encoding="utf-8")
+    assert text.startswith("train:\n")
+    config.write_text(text.replace("train:\n", "train:\n  seed: 5\n", 1), encoding="utf-8")
 
 
 @pytest.fixture(scope="module")

@@ -267,6 +267,11 @@ def _cases() -> Iterator[Case]:
                r"frame 0: expected 44 values, got 'abc' \(a string\)")
     yield Case("clip_infinity", "motions", _text(json.dumps({"Frames": [R, _set(R, 1, float("inf"))]})),
                "frame 1: value inf at column 1 is not finite")
+    yield Case("clip_key_twice", "motions", _text('{"Loop": "none", "Frames": [' + json.dumps(R) + "],\n"
+                                                  ' "Frames": [' + json.dumps(R) + "]}"),
+               r"not valid JSON \(duplicate key 'Frames' \(first at line 1\): line 2 column 2")
+    yield Case("clip_key_twice_with_an_escape", "motions", _text('{"Loop": "none", "\\u004Coop": "wrap"}'),
+               r"duplicate key 'Loop' \(first at line 1\): line 1 column 18")
     yield Case("clip_a_bvh_given_as_motions", "motions", lambda ws, good: Path(shutil.copy(good["bvh"], ws)),
                r"not a motion file .*import it with `mimic-motions import`")
     # Clip packs (.h5 of raw DeepMimic rows).
@@ -403,6 +408,15 @@ def _cases() -> Iterator[Case]:
                r"tips.head.along: expected a non-zero vector of 3 numbers")
     yield Case("map_nested_200k", "joint_map", _map(lambda t: t + "extra: " + "[" * 200_000 + "]" * 200_000 + "\n"),
                "not valid YAML")
+    # A key given twice in one mapping: PyYAML would keep the last without a word.
+    yield Case("map_body_mapped_twice", "joint_map", _map(lambda t: t.replace("  head: [Head]\n",
+                                                                              "  head: [Head]\n  pelvis: [Spine]\n")),
+               r"not valid YAML \(duplicate key 'pelvis' \(first at line \d+\) at line \d+, column 3\)")
+    yield Case("map_tip_key_twice", "joint_map",
+               _map(lambda t: t.replace("along: [0.0, 0.0, 1.0]}", "along: [0.0, 0.0, 1.0], along: [1, 0, 0]}")),
+               r"duplicate key 'along' \(first at line (\d+)\) at line \1, column \d+")
+    yield Case("map_up_twice", "joint_map", _map(lambda t: t + "up: z\n"),
+               r"duplicate key 'up' \(first at line \d+\) at line \d+, column 1")
     # Configs (common/config.py): numbers must be numbers.
     yield Case("config_float_a_string", "config", _text("ppo:\n  actor_lr: '1e-3'\n", "c.yaml"),
                r"key 'ppo.actor_lr' expects float, got '1e-3' \(str\)", ConfigError)
@@ -416,6 +430,13 @@ def _cases() -> Iterator[Case]:
                r"key 'gym.num_envs' expects int, got 8.5 \(float\)", ConfigError)
     yield Case("config_python_tag", "config", _text("ppo: !!python/object:os.system {}\n", "c.yaml"),
                "could not determine a constructor for the tag", ConfigError)
+    yield Case("config_key_twice_at_the_top", "config", _text("ppo:\n  epochs: 2\nppo:\n  epochs: 3\n", "c.yaml"),
+               r"invalid YAML: duplicate key 'ppo' \(first at line 1\) at line 3, column 1", ConfigError)
+    yield Case("config_key_twice_in_a_section", "config", _text("gym: {num_envs: 8, num_envs: 16}\n", "c.yaml"),
+               r"duplicate key 'num_envs' \(first at line 1\) at line 1, column 20", ConfigError)
+    yield Case("config_key_twice_in_a_list_of_mappings", "config",
+               _text("train:\n  motions:\n  - {clip: walk}\n  - {clip: run, clip: jog}\n", "c.yaml"),
+               r"duplicate key 'clip' \(first at line 4\) at line 4, column 17", ConfigError)
     # fmt: on
 
 

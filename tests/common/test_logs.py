@@ -94,6 +94,9 @@ class _FakeWriter:
     def add_scalar(self, tag: str, value: float, global_step: int) -> None:
         self.scalars.append((tag, value, global_step))
 
+    def flush(self) -> None:
+        pass
+
     def close(self) -> None:
         self.closed = True
 
