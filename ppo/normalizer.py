@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from common.sim.observation import is_raw_feature
+
 Moments = tuple[int, np.ndarray, np.ndarray]
 """A batch's sample count, mean (D,) and (biased) variance (D,)."""
 
@@ -114,7 +116,8 @@ def _chan(a: Moments, b: Moments) -> Moments:
 
 
 def normalized_mask(layout: dict[str, slice], exclude: Iterable[str]) -> np.ndarray:
-    """True for the observation entries the normaliser standardises (all but the ``exclude`` features).
+    """True for the observation entries the normaliser standardises: all but the ``exclude`` features and the terrain
+    features (heightmap, contact labels: :func:`common.sim.observation.is_raw_feature`), which PARC leaves raw.
 
     Raises:
         ValueError: If ``exclude`` names an unknown feature.
@@ -125,6 +128,6 @@ def normalized_mask(layout: dict[str, slice], exclude: Iterable[str]) -> np.ndar
         raise ValueError(f"normalizer.exclude: unknown observation features {unknown} (known: {list(layout)})")
     size = max(s.stop for s in layout.values())
     mask = np.ones(size, dtype=bool)
-    for key in exclude:
+    for key in exclude + tuple(k for k in layout if is_raw_feature(k)):
         mask[layout[key]] = False
     return mask

@@ -62,6 +62,19 @@ def set_torsional_friction(m: mujoco.MjModel, coefficient: float) -> None:
     m.geom_friction[floor, 1] = coefficient
 
 
+def apply_physics(m: mujoco.MjModel, physics: PhysicsConfig) -> None:
+    """Sets a freshly compiled model of the character to ``physics``' rates, solver and study knobs (in place)."""
+    m.opt.timestep = physics.physics_dt
+    m.opt.iterations = physics.solver_iterations
+    m.opt.ls_iterations = physics.ls_iterations
+    if physics.armature is not None:
+        m.dof_armature[m.jnt_dofadr[m.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]] = physics.armature
+    if physics.torque_scale != 1.0:
+        m.actuator_forcerange[:] *= physics.torque_scale
+    if physics.torsional_friction > 0.0:
+        set_torsional_friction(m, physics.torsional_friction)
+
+
 HAND_BODIES = ("right_hand", "left_hand")
 # DeepMimic's EnableFallContact bodies: touching the ground with one of them is a fall.
 FALL_CONTACT_BODIES = ("pelvis", "torso", "head")
@@ -152,16 +165,8 @@ class Humanoid:
             xml_path = resources.files("common.character") / "assets" / ASSET_XML
         self.xml_path = Path(str(xml_path))
         self.model = mujoco.MjModel.from_xml_path(str(self.xml_path))
-        self.model.opt.timestep = self.physics.physics_dt
-        self.model.opt.iterations = self.physics.solver_iterations
-        self.model.opt.ls_iterations = self.physics.ls_iterations
+        apply_physics(self.model, self.physics)
         m = self.model
-        if self.physics.armature is not None:
-            m.dof_armature[m.jnt_dofadr[m.jnt_type == mujoco.mjtJoint.mjJNT_HINGE]] = self.physics.armature
-        if self.physics.torque_scale != 1.0:
-            m.actuator_forcerange[:] *= self.physics.torque_scale
-        if self.physics.torsional_friction > 0.0:
-            set_torsional_friction(m, self.physics.torsional_friction)
         # Body 0 is MuJoCo's world body; the character's bodies follow in depth-first order.
         self.body_names: tuple[str, ...] = tuple(
             mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, i) for i in range(1, m.nbody)

@@ -28,12 +28,16 @@ from common.motion.limits import (
     lengths,
 )
 from common.motion.motion import CLIP_PACK_FORMAT, Clip, MotionFormatError, read_clip_pack, read_deepmimic
+from common.motion.terrain import check_terrain, read_terrain, write_terrain
 
 DATASET_FORMAT = "mimictrack.motion_dataset"
 DATASET_VERSION = 2
 """2: looped clips keep the recorded floor clearance (session 13's loop bend). Version 1 files still load, with a
 warning when they hold a looped clip: its frames may have the feet up to 9 cm in the floor (jump, crawl)."""
-READABLE_VERSIONS = (1, 2)
+DATASET_TERRAIN_VERSION = 3
+"""3: version 2 whose clips may carry a terrain (group ``terrain`` beside the frames); written only when one does, so
+that code that would drop the terrain refuses the file and a flat dataset is written as before."""
+READABLE_VERSIONS = (1, 2, 3)
 UNIT_QUAT_TOLERANCE = 1e-3  # a stored rotation's length may be off 1 by this much (written normalised in float64)
 
 
@@ -121,7 +125,8 @@ def save_dataset(path: str | Path, library: MotionLibrary, humanoid: Humanoid) -
     _check_library(library, humanoid, str(path))
     with hdf5_output(path) as f:
         f.attrs["format"] = DATASET_FORMAT
-        f.attrs["version"] = DATASET_VERSION
+        has_terrain = any(clip.terrain is not None for clip in library.clips)
+        f.attrs["version"] = DATASET_TERRAIN_VERSION if has_terrain else DATASET_VERSION
         f.attrs["control_hz"] = humanoid.physics.control_hz
         f.attrs["body_names"] = np.array(humanoid.body_names, dtype="S")
         f.attrs["nq"] = humanoid.nq
@@ -138,6 +143,8 @@ def save_dataset(path: str | Path, library: MotionLibrary, humanoid: Humanoid) -
             g.create_dataset("cycle_shift", data=clip.cycle_shift)
             for field in FRAME_FIELDS:
                 g.create_dataset(field, data=getattr(clip.frames, field), compression="gzip", compression_opts=1)
+            if clip.terrain is not None:
+                write_terrain(g.create_group("terrain"), clip.terrain)
 
 
 def _check_library(library: MotionLibrary, humanoid: Humanoid, where: str) -> None:
@@ -197,6 +204,8 @@ def _check_clip(clip: ClipFrames, where: str, humanoid: Humanoid) -> None:
     if shift.shape != (3,) or not np.all(np.isfinite(shift)) or np.linalg.norm(shift) > 2.0 * MAX_ROOT_DISTANCE:
         raise MotionFormatError(f"{where}: cycle_shift must be 3 finite numbers within {2 * MAX_ROOT_DISTANCE:g} m, "
                                 f"got {np.array2string(shift, precision=4)}")  # fmt: skip
+    if clip.terrain is not None:
+        check_terrain(clip.terrain.heights, clip.terrain.cell_size, clip.terrain.origin, where)
 
 
 def _body_names(f: h5py.File, where: str) -> tuple[str, ...]:
@@ -222,6 +231,7 @@ def _read_clip(item: object, name: str, where: str, humanoid: Humanoid) -> tuple
         hdf5.attr(item, "cycle_yaw", "number", where),
         hdf5.array(item, "cycle_shift", where, (3,), 3),
         frames,
+        read_terrain(item["terrain"], where) if "terrain" in item else None,
     )
     _check_clip(clip, where, humanoid)
     return hdf5.attr(item, "order", "int", where), clip

@@ -46,6 +46,7 @@ from common.maths.rotations import (
 )
 from common.motion.errors import MotionFormatError
 from common.motion.motion import Clip
+from common.motion.terrain import Terrain
 
 SEAM_BLEND = 0.5  # s: a wrap clip's end takes its first frame's clearance above the floor over this long
 SEAM_BRIDGE = 0.1  # s: with the seam bridge (opt-in), the keyframes this close to a wrap clip's loop seam are bridged
@@ -57,7 +58,8 @@ class ClipFrames:
     """One clip on the control-rate grid t_k = k * dt (what the HDF5 dataset stores per clip).
 
     A wrap clip is time-scaled so that its cycle lasts a whole number of steps n; its grid holds frames 0..n, frame n
-    being frame 0 of the next cycle. A one-shot clip's grid ends at the last grid time <= its duration.
+    being frame 0 of the next cycle. A one-shot clip's grid ends at the last grid time <= its duration. ``terrain``
+    is the ground the clip is on (None: the flat floor); it does not move with a wrap clip's cycles.
     """
 
     name: str
@@ -67,6 +69,7 @@ class ClipFrames:
     cycle_yaw: float
     cycle_shift: np.ndarray
     frames: CharacterState
+    terrain: Terrain | None = None
 
 
 def _bend_loop(clip: Clip, humanoid: Humanoid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -307,7 +310,8 @@ def resample_clip(clip: Clip, humanoid: Humanoid, seam_bridge: float = 0.0) -> C
         w_world[-1] = angular_velocity(rot[-2], rot[-1], dt)
         qvel[:, 3:6] = quat_rotate_inv(rot, w_world)
     yaw, shift = cycle_transform(clip) if clip.loop else (0.0, np.zeros(3))
-    return ClipFrames(clip.name, clip.source, clip.loop, clip.duration, yaw, shift, body_states(humanoid, qpos, qvel))
+    return ClipFrames(clip.name, clip.source, clip.loop, clip.duration, yaw, shift, body_states(humanoid, qpos, qvel),
+                      clip.terrain)  # fmt: skip
 
 
 def body_states(humanoid: Humanoid, qpos: np.ndarray, qvel: np.ndarray) -> CharacterState:

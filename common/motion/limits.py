@@ -31,6 +31,9 @@ MAX_NUMBER_DIGITS = 20  # digits of an integer in a text file: no bound above ne
 MAX_BVH_DEPTH = 64  # joints from a BVH root to its deepest leaf: CMU's deepest chain is 9, with fingers ~15
 MAX_BVH_JOINTS = 1_000
 MAX_BVH_VALUE = 1e6  # |value| of a BVH number (file units or degrees): 1 km in mm, 2,777 turns
+MAX_TERRAIN_HEIGHT = 100.0  # m, |height| of a terrain point: a 10 km mountain is a file in cm or mm
+TERRAIN_CELL_RANGE = (0.005, 1.0)  # m: PARC samples at 0.1 m; finer than 5 mm is no ground a foot feels
+MAX_TERRAIN_POINTS = 4_000_000  # grid points of one terrain: 200 m x 200 m at 0.1 m, 32 MB of float64
 
 
 def check_regular_file(path: Path, error: type[Exception], max_bytes: int | None = MAX_FILE_BYTES) -> None:

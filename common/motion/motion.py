@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import h5py
@@ -39,11 +39,15 @@ from common.motion.limits import (
     lengths,
     show_value,
 )
+from common.motion.terrain import Terrain, read_sidecar, read_terrain, write_terrain
+from common.strict_json import parse_json
 
 ROW_LENGTH = 44
 LOOP_MODES = ("wrap", "none")
 CLIP_PACK_FORMAT = "mimictrack.clip_pack"
 CLIP_PACK_VERSION = 1
+CLIP_PACK_TERRAIN_VERSION = 2  # written when a clip has a terrain (group 'terrains'), so older code refuses the file
+TERRAIN_GROUP = "terrains"
 
 # r = +90 deg about X maps DeepMimic's Y-up frame to Z up: (x, y, z) -> (x, -z, y).
 _Y_TO_Z = np.array([math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0])
@@ -64,6 +68,7 @@ class Clip:
         root_rot: Root rotation, world, unit quaternions in one hemisphere along time. Shape: (M, 4).
         joint_rot: Local rotation of every joint in ``DEEPMIMIC_JOINTS`` order, as unit quaternions (knees and
             elbows as a rotation about the model's +y hinge axis). Shape: (M, J=12, 4).
+        terrain: The ground the clip is on (:mod:`common.motion.terrain`); None: the flat floor.
     """
 
     name: str
@@ -73,6 +78,7 @@ class Clip:
     root_pos: np.ndarray
     root_rot: np.ndarray
     joint_rot: np.ndarray
+    terrain: Terrain | None = None
 
     @property
     def duration(self) -> float:
@@ -212,7 +218,7 @@ def read_deepmimic(path: str | Path) -> Clip:
     path = Path(path)
     check_regular_file(path, MotionFormatError)
     try:
-        doc = json.loads(path.read_bytes().decode("utf-8"), parse_int=_json_int)
+        doc = parse_json(path.read_bytes().decode("utf-8"), parse_int=_json_int)
     except UnicodeDecodeError as e:
         raise MotionFormatError(f"{path}: not a text file (byte 0x{e.object[e.start]:02x} at offset {e.start} is not "
                                 "UTF-8); a DeepMimic clip is JSON text") from None  # fmt: skip
@@ -243,14 +249,17 @@ def read_deepmimic(path: str | Path) -> Clip:
                        if type(v) not in (int, float))  # fmt: skip
         raise MotionFormatError(f"{path}: frame {i}: column {c} holds {show_value(v)}, not a number")
     frames = np.asarray(rows, dtype=np.float64)
-    return frames_to_clip(frames, doc.get("Loop", "none"), clip_name(path), str(path))
+    clip = frames_to_clip(frames, doc.get("Loop", "none"), clip_name(path), str(path))
+    terrain = read_sidecar(path)
+    return clip if terrain is None else replace(clip, terrain=terrain)
 
 
 def write_clip_pack(path: str | Path, sources: list[str | Path]) -> None:
     """Stores DeepMimic clips compactly: their raw rows as float32 in one HDF5 file (atomic write).
 
     Each clip is read (validated) and its rows checked again as float32, as :func:`read_clip_pack` will read them:
-    rounding can carry a value over a bound (a frame duration of 1e-4 s is 9.99999975e-05 s in float32).
+    rounding can carry a value over a bound (a frame duration of 1e-4 s is 9.99999975e-05 s in float32). A clip's
+    terrain (its sidecar file) is stored in float64 in the group ``terrains``; the pack is then version 2.
 
     Raises:
         MotionFormatError: a source the reader refuses, as read or as stored; nothing is written.
@@ -261,13 +270,22 @@ def write_clip_pack(path: str | Path, sources: list[str | Path]) -> None:
     with hdf5_output(path) as f:
         f.attrs["format"] = CLIP_PACK_FORMAT
         f.attrs["version"] = CLIP_PACK_VERSION
+        terrains: dict[str, Terrain] = {}
         for src in sources:
             clip = read_deepmimic(src)
-            doc = json.loads(Path(src).read_text(encoding="utf-8"))
+            if clip.terrain is not None:
+                terrains[clip.name] = clip.terrain
+            doc = parse_json(Path(src).read_text(encoding="utf-8"))
             rows = np.asarray(doc["Frames"], dtype=np.float32)
             frames_to_clip(rows.astype(np.float64), doc.get("Loop", "none"), clip.name, f"{src} (as float32)")
             d = f.create_dataset(clip.name, data=rows, compression="gzip")
             d.attrs["loop"] = doc.get("Loop", "none")
+        if terrains:
+            if TERRAIN_GROUP in f:
+                raise MotionFormatError(f"{path}: a clip named '{TERRAIN_GROUP}' cannot be in a pack with terrains")
+            f.attrs["version"] = CLIP_PACK_TERRAIN_VERSION
+            for name, terrain in terrains.items():
+                write_terrain(f.require_group(TERRAIN_GROUP).create_group(name), terrain)
 
 
 def read_clip_pack(path: str | Path) -> list[Clip]:
@@ -286,9 +304,12 @@ def read_clip_pack(path: str | Path) -> list[Clip]:
             if fmt != CLIP_PACK_FORMAT:
                 raise MotionFormatError(f"{path}: not a clip pack (format {fmt!r})")
             version = hdf5.attr(f, "version", "int", str(path))
-            if version != CLIP_PACK_VERSION:
-                raise MotionFormatError(f"{path}: clip pack version {version}, this code reads {CLIP_PACK_VERSION}")
-            keys = sorted(f.keys())
+            if version not in (CLIP_PACK_VERSION, CLIP_PACK_TERRAIN_VERSION):
+                raise MotionFormatError(f"{path}: clip pack version {version}, this code reads {CLIP_PACK_VERSION} "
+                                        f"and {CLIP_PACK_TERRAIN_VERSION}")  # fmt: skip
+            terrains = f.get(TERRAIN_GROUP) if version == CLIP_PACK_TERRAIN_VERSION else None
+            terrains = terrains if isinstance(terrains, h5py.Group) else None
+            keys = sorted(k for k in f.keys() if terrains is None or k != TERRAIN_GROUP)
             if not keys:
                 raise MotionFormatError(f"{path}: a clip pack with no clips")
             if len(keys) > MAX_CLIPS:
@@ -297,7 +318,13 @@ def read_clip_pack(path: str | Path) -> list[Clip]:
             for k in keys:
                 where = f"{path}:{k}"
                 frames = hdf5.array(f, k, where, (None, ROW_LENGTH), MAX_KEYFRAMES)
-                clips.append(frames_to_clip(frames, hdf5.attr(f[k], "loop", "str", where), k, where))
+                clip = frames_to_clip(frames, hdf5.attr(f[k], "loop", "str", where), k, where)
+                if terrains is not None and k in terrains:
+                    clip = replace(clip, terrain=read_terrain(terrains[k], where))
+                clips.append(clip)
+            unknown = sorted(set(terrains or ()) - set(keys))
+            if unknown:
+                raise MotionFormatError(f"{path}: a terrain for '{unknown[0]}', which is not a clip of the pack")
             return clips
     except OSError as e:
         raise MotionFormatError(f"{path}: not a readable HDF5 file ({e})") from None

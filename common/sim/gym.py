@@ -25,6 +25,7 @@ from common.motion.library import MotionLibrary
 from common.sim.pushes import impulse_velocity_change
 from common.sim.rewards import RewardConfig, TerminationConfig, TrackingReward, termination
 from common.sim.sim import BatchedSim
+from common.sim.terrain import ClipTerrains
 
 
 @dataclass(frozen=True)
@@ -146,7 +147,10 @@ class TrackingGym:
         self.num_envs = config.num_envs
         self.dt = self.humanoid.physics.control_dt
         self.rng = np.random.default_rng(config.seed)
-        self.sim = BatchedSim(self.humanoid, config.num_envs, config.threads, config.max_speed)
+        # Clips on terrain: each character is stepped in its clip's terrain model (common/sim/terrain.py).
+        self.terrains = ClipTerrains.of(library)
+        flat, self._clip_models = self.terrains.models(self.humanoid) if self.terrains.any else (None, None)
+        self.sim = BatchedSim(self.humanoid, config.num_envs, config.threads, config.max_speed, model=flat)
         self.fk = ForwardKinematics(self.humanoid, config.threads)
         self.geometry = BodyGeometry(self.humanoid)
         self.reward_fn = TrackingReward(self.humanoid, config.reward)
@@ -229,8 +233,13 @@ class TrackingGym:
         ref = self.library.query(clips, times)
         qpos = ref.qpos.copy()
         if self.config.rsi_lift:
-            qpos[:, 2] += np.maximum(0.0, -self.geometry.lowest_points(ref.body_pos, ref.body_rot).min(axis=-1))
+            clearance = self.geometry.lowest_points(ref.body_pos, ref.body_rot)
+            if self.terrains.any:  # the ground under each body's origin
+                clearance = clearance - self.terrains.height(clips, ref.body_pos[..., 0], ref.body_pos[..., 1])
+            qpos[:, 2] += np.maximum(0.0, -clearance.min(axis=-1))
         self.sim.set_state(ids, qpos, ref.qvel)
+        if self._clip_models is not None:
+            self.sim.set_models(ids, [self._clip_models[c] for c in clips])
         state = self.fk(self.sim.qpos[ids].copy(), self.sim.qvel[ids].copy())
         ref_next = self.library.query(clips, times + self.dt)
         if self._state is None:
@@ -350,6 +359,8 @@ class TrackingGym:
             raise ValueError(f"gym state for {state['sim_state'].shape[0]} characters, this gym has {self.num_envs}")
         self.sim.state[:] = state["sim_state"]
         self.clip[:], self.start_time[:] = state["clip"], state["start_time"]
+        if self._clip_models is not None:
+            self.sim.set_models(np.arange(self.num_envs), [self._clip_models[c] for c in self.clip])
         self.frame[:], self.episode_id[:] = state["frame"], state["episode_id"]
         self._next_episode = int(state["next_episode"])
         self.rng.bit_generator.state = state["rng"]

@@ -11,6 +11,13 @@ under the root on the ground), so that a shift along the ground or a turn about 
   ``ref{k}_dof_pos``: hinge angles sim - ref. The first offset also has ``ref{k}_vel``, ``ref{k}_angvel`` and
   ``ref{k}_dof_vel`` (sim - ref); later frames' velocities follow from the spacing of their positions.
 
+Terrain features of ``parc`` (PARC's, off by default; both left out of the normaliser, :func:`is_raw_feature`):
+- ``heightmap``: the simulated root's height above the ground at a square grid of points around it, turned with its
+  heading (spacing ``heightmap_spacing``, out to ``heightmap_extent``; x forward varying fastest, then y left);
+  constant on flat ground. (P,), P = (2 extent / spacing + 1)^2.
+- ``ref{k}_contacts`` for every offset k of ``contact_frames``: 1 where the reference's body at t + k dt is within
+  ``contact_height`` of its clip's ground, else 0 (:func:`common.sim.terrain.contact_labels`). (B,).
+
 ``local`` (the previous default): :func:`common.sim.features.tracking_observation` (Local() of both characters, the
 reference root in the simulated root's frame, the clip phase).
 """
@@ -23,12 +30,13 @@ from typing import Literal
 
 import numpy as np
 
-from common.character.humanoid import Humanoid
+from common.character.humanoid import BodyGeometry, Humanoid
 from common.character.state import CharacterState
 from common.maths.rotations import quat_conj, quat_from_yaw, quat_mul, quat_rotate, quat_to_two_axis, quat_yaw
 from common.motion.library import MotionLibrary
 from common.sim.features import OBSERVATION_KEYS, tracking_observation
 from common.sim.gym import StepResult
+from common.sim.terrain import ClipTerrains, contact_labels, heightmap, heightmap_offsets
 
 
 @dataclass(frozen=True)
@@ -40,15 +48,49 @@ class ObservationConfig:
             reference frames) or ``local`` (Local() of both characters, the reference root one frame ahead, phase).
         future_frames: ``parc``: offsets k (control steps) of the reference frames t + k dt observed, increasing;
             the first one also gives the velocity errors.
+        heightmap_extent: ``parc``: the heightmap reaches this far (m) from the root along the heading and across it
+            (PARC: 1.0); None: no heightmap.
+        heightmap_spacing: Distance between the heightmap's points (m; PARC's horizontal scale).
+        contact_frames: ``parc``: offsets k of the reference frames whose contact labels are observed, increasing;
+            empty: none.
+        contact_height: A reference body within this height (m) of the ground is in contact.
     """
 
     kind: Literal["parc", "local"] = "parc"
     future_frames: tuple[int, ...] = (1, 2, 4, 8, 16)
+    heightmap_extent: float | None = None
+    heightmap_spacing: float = 0.1
+    contact_frames: tuple[int, ...] = ()
+    contact_height: float = 0.03
 
     def __post_init__(self) -> None:
         k = self.future_frames
         if not k or min(k) < 1 or list(k) != sorted(set(k)):
             raise ValueError(f"future_frames must be distinct positive offsets in increasing order, got {list(k)}")
+        c = self.contact_frames
+        if c and (min(c) < 1 or list(c) != sorted(set(c))):
+            raise ValueError(f"contact_frames must be distinct positive offsets in increasing order, got {list(c)}")
+        if not (self.heightmap_spacing > 0 and self.contact_height > 0):
+            raise ValueError(f"heightmap_spacing and contact_height must be > 0 (m), got {self.heightmap_spacing}, "
+                             f"{self.contact_height}")  # fmt: skip
+        e = self.heightmap_extent
+        if e is not None and not e >= self.heightmap_spacing:
+            raise ValueError(f"heightmap_extent must be >= heightmap_spacing ({self.heightmap_spacing} m), got {e}")
+        if self.kind != "parc" and (e is not None or c):
+            raise ValueError("heightmap_extent and contact_frames are features of the 'parc' observation")
+
+
+def terrain_feature_widths(config: ObservationConfig, num_bodies: int) -> dict[str, int]:
+    """{name: width} of the terrain features ``config`` turns on, in the order they follow the ``parc`` features."""
+    out = {}
+    if config.heightmap_extent is not None:
+        out["heightmap"] = len(heightmap_offsets(config.heightmap_extent, config.heightmap_spacing))
+    return out | {f"ref{k}_contacts": num_bodies for k in config.contact_frames}
+
+
+def is_raw_feature(name: str) -> bool:
+    """Features a normaliser leaves as they are: the heightmap (metres) and contact labels (0 or 1), as PARC does."""
+    return name == "heightmap" or name.endswith("_contacts")
 
 
 def parc_features(sim: CharacterState, refs: Mapping[int, CharacterState], hinge_qpos: np.ndarray,
@@ -100,6 +142,11 @@ class Observer:
     def __init__(self, config: ObservationConfig, humanoid: Humanoid, library: MotionLibrary) -> None:
         self.config, self.library = config, library
         self.hinge_qpos, self.hinge_dof = humanoid.hinge_qpos, humanoid.hinge_dof
+        terrain_features = config.heightmap_extent is not None or bool(config.contact_frames)
+        self.terrains = ClipTerrains.of(library) if terrain_features else None
+        self.geometry = BodyGeometry(humanoid) if config.contact_frames else None
+        self.offsets = (None if config.heightmap_extent is None
+                        else heightmap_offsets(config.heightmap_extent, config.heightmap_spacing))  # fmt: skip
 
     def features(self, sim: CharacterState, ref_next: CharacterState, phase: np.ndarray, clip: np.ndarray,
                  time: np.ndarray) -> dict[str, np.ndarray]:  # fmt: skip
@@ -117,7 +164,14 @@ class Observer:
             return {k: named[k] for k in OBSERVATION_KEYS}
         dt = self.library.dt
         refs = {k: ref_next if k == 1 else self.library.query(clip, time + k * dt) for k in self.config.future_frames}
-        return parc_features(sim, refs, self.hinge_qpos, self.hinge_dof)
+        out = parc_features(sim, refs, self.hinge_qpos, self.hinge_dof)
+        if self.offsets is not None:
+            out["heightmap"] = heightmap(self.terrains, clip, sim.body_pos[:, 0], sim.body_rot[:, 0], self.offsets)
+        for k in self.config.contact_frames:
+            ref = refs[k] if k in refs else ref_next if k == 1 else self.library.query(clip, time + k * dt)
+            out[f"ref{k}_contacts"] = contact_labels(self.terrains, clip, self.geometry, ref.body_pos, ref.body_rot,
+                                                     self.config.contact_height)  # fmt: skip
+        return out
 
     def __call__(self, result: StepResult) -> np.ndarray:
         """Flat observation of the current states of ``result``. Shape: (N, D_obs)."""

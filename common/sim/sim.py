@@ -31,11 +31,13 @@ class BatchedSim:
         max_speed: A generalised velocity above this (m/s or rad/s) counts as a blown-up simulation.
         applied: :meth:`step` also takes an external generalised force (``qfrc_applied``, nv values: forces on
             translational and torques on rotational dofs) per character.
+        model: The model every character starts in (``humanoid.model`` when None); :meth:`set_models` puts
+            characters in others of the same sizes (:mod:`common.sim.terrain`).
     """
 
     def __init__(self, humanoid: Humanoid, num_envs: int, threads: int = 2, max_speed: float = 1e3,
-                 applied: bool = False) -> None:  # fmt: skip
-        m = humanoid.model
+                 applied: bool = False, model: mujoco.MjModel | None = None) -> None:  # fmt: skip
+        m = humanoid.model if model is None else model
         self.model = m
         self.num_envs = num_envs
         self.substeps = humanoid.physics.substeps
@@ -72,6 +74,18 @@ class BatchedSim:
     def qvel(self) -> np.ndarray:
         """View of every character's qvel. Shape: (N, nv)."""
         return self.state[:, self._qvel]
+
+    @property
+    def models(self) -> tuple[mujoco.MjModel, ...]:
+        """The model each character is stepped in. Length N."""
+        return tuple(self._models)
+
+    def set_models(self, ids: np.ndarray, models: list[mujoco.MjModel]) -> None:
+        """Steps characters ``ids`` in ``models`` from now on (each with the sizes of the model it started in)."""
+        for i, model in zip(np.asarray(ids, dtype=np.int64).tolist(), models, strict=True):
+            if model.ngeom != self.model.ngeom or model.nbody != self.model.nbody or model.nv != self.model.nv:
+                raise ValueError("a character's model must have the sizes of the model the simulator was built for")
+            self._models[i] = model
 
     def set_state(self, ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> None:
         """Places characters ``ids`` at the given coordinates, at rest time 0 and with no actuator state."""

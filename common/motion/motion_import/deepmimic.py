@@ -15,6 +15,7 @@ import numpy as np
 from common.character.humanoid import DEEPMIMIC_JOINTS
 from common.maths.rotations import quat_conj, quat_from_axis_angle, quat_mul
 from common.motion.motion import ROW_LENGTH, Clip, frames_to_clip
+from common.motion.terrain import sidecar_path, write_sidecar
 
 _R = quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), np.pi / 2)  # Y up -> Z up
 
@@ -66,11 +67,18 @@ def _rows_read_back(clip: Clip) -> list[list[float]]:
 def write_deepmimic(path: str | Path, clip: Clip) -> None:
     """Writes ``clip`` as DeepMimic JSON (``Loop``, ``Frames``), atomically: nothing is replaced until complete.
 
+    A clip's terrain goes into its sidecar file (:func:`common.motion.terrain.write_sidecar`); a flat clip's stale
+    sidecar is removed, so that the reader reads back the clip as written.
+
     Raises:
         MotionFormatError: a clip the reader would refuse as written (see :func:`check_writable`); nothing is written.
     """
     path = Path(path)
     doc = {"Loop": "wrap" if clip.loop else "none", "Frames": _rows_read_back(clip)}
+    if clip.terrain is not None:
+        write_sidecar(path, clip.terrain)
+    else:
+        sidecar_path(path).unlink(missing_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     try:
         tmp.write_text(json.dumps(doc, separators=(",", ":")).replace("],[", "],\n["))
