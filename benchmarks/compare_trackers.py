@@ -43,9 +43,10 @@ sys.path.insert(0, str(ROOT))
 
 from common.errors import non_negative_int  # noqa: E402
 from common.run.logs import read_metrics  # noqa: E402
+from common.strict_json import parse_json  # noqa: E402
 from report.compare import main as compare_main  # noqa: E402
+from report.learners import LEARNERS, trainable  # noqa: E402
 
-LEARNERS = {"supertrack": "supertrack.train", "ppo": "ppo.train"}
 SUITES = {
     "walk": ["walk"],
     "run": ["run"],
@@ -84,8 +85,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seeds", type=int, default=1, help="seeds per method (0 .. N-1), for the spread")
     parser.add_argument("--parallel", type=int, default=1,
                         help="runs at a time; above 1 every run gets one core (see the scheduling notes)")
-    parser.add_argument("--learners", nargs="+", choices=sorted(LEARNERS), default=list(LEARNERS),
-                        help="methods to train (default: both)")  # fmt: skip
+    parser.add_argument("--learners", nargs="+", choices=sorted(trainable()),
+                        default=[n for n in trainable() if LEARNERS[n].suite_default],
+                        help="methods to train (default: supertrack and ppo; the learner registry, report/learners.py, "
+                             "lists them)")  # fmt: skip
     parser.add_argument("--evals", type=int, default=8, help="evaluations logged per run (learning-curve points)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="config override passed to every run (repeatable)")  # fmt: skip
@@ -145,8 +148,9 @@ def jobs(args: argparse.Namespace, out: Path) -> list[Job]:
     for seed in range(args.seeds):
         for learner in args.learners:
             run_dir = out / "runs" / f"{learner}-s{seed}"
-            config = ROOT / "configs" / learner / f"{preset}.yaml"
-            cmd = [sys.executable, "-m", LEARNERS[learner], "--config", str(config),
+            spec = LEARNERS[learner]
+            config = ROOT / "configs" / str(spec.configs) / f"{preset}.yaml"
+            cmd = [sys.executable, "-m", str(spec.train), "--config", str(config),
                    "--out", str(run_dir), "--seed", str(seed), "--max-minutes", str(args.minutes),
                    "--motions", *suite_motions(args)]  # fmt: skip
             for s in sets:
@@ -174,7 +178,7 @@ def _log(msg: str) -> None:
 def _start(job: Job, args: argparse.Namespace, logs: Path) -> subprocess.Popen | None:
     """Starts a job's process; None when the run directory already holds it finished."""
     marker = job.out / COMMAND_FILE
-    same = marker.exists() and json.loads(marker.read_text()).get("args") == job.cmd[1:]
+    same = marker.exists() and parse_json(marker.read_text()).get("args") == job.cmd[1:]
     if job.out.exists() and finished(job.out, args.minutes) and (same or not marker.exists()):
         _log(f"{job.learner} seed {job.seed}: finished run in {job.out}, reused")
         return None

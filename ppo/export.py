@@ -22,7 +22,7 @@ from common.motion.library import MotionLibrary
 from common.run.directory import load_run_checkpoint
 from common.sim.features import OBSERVATION_KEYS, tracking_observation
 from common.sim.gym import StepResult
-from common.sim.observation import ObservationConfig, Observer, parc_features
+from common.sim.observation import ObservationConfig, Observer, parc_features, terrain_feature_widths
 from ppo.config import PPOTrackerConfig
 from ppo.networks import ActorCritic
 from ppo.normalizer import RunningNormalizer
@@ -140,7 +140,7 @@ def observation_layout(config: ObservationConfig, humanoid: Humanoid) -> dict[st
         named = {k: named[k] for k in OBSERVATION_KEYS}
     else:
         named = parc_features(rest, dict.fromkeys(config.future_frames, rest), humanoid.hinge_qpos, humanoid.hinge_dof)
-    return {name: value.shape[-1] for name, value in named.items()}
+    return {name: value.shape[-1] for name, value in named.items()} | terrain_feature_widths(config, nb)
 
 
 def onnx_module(run_dir: Path, checkpoint: Path, humanoid: Humanoid) -> tuple[nn.Module, dict[str, Any]]:
@@ -155,32 +155,61 @@ def onnx_module(run_dir: Path, checkpoint: Path, humanoid: Humanoid) -> tuple[nn
         ValueError: As :func:`load_eval_policy`, and if the run's observation does not have the policy's width.
     """
     cfg, actor, normalizer = load_actor(run_dir, checkpoint, humanoid)
-    widths = observation_layout(cfg.observation, humanoid)
-    size, start, features = normalizer.size, 0, []
-    if sum(widths.values()) != size:
-        raise ValueError(f"{run_dir}/config.yaml: the '{cfg.observation.kind}' observation has "
-                         f"{sum(widths.values())} features, the policy in {checkpoint} reads {size}")  # fmt: skip
-    for name, width in widths.items():
-        normalised = bool(normalizer.mask[start : start + width].all())
-        features.append({"name": name, "width": width, "normalised": normalised})
+    features = feature_layout(cfg.observation, humanoid, normalizer.mask)
+    width = sum(f["width"] for f in features)
+    if width != normalizer.size:
+        raise ValueError(f"{run_dir}/config.yaml: the '{cfg.observation.kind}' observation has {width} features, "
+                         f"the policy in {checkpoint} reads {normalizer.size}")  # fmt: skip
+    spec = onnx_spec(cfg.observation, humanoid, features, cfg.network.action_scale, cfg.network.action_clip)
+    return OnnxPolicy(actor, normalizer, cfg.network.action_scale, cfg.network.action_clip).eval(), spec
+
+
+def feature_layout(config: ObservationConfig, humanoid: Humanoid, normalised: np.ndarray) -> list[dict[str, Any]]:
+    """The flat observation's features in order, each {"name", "width", "normalised"}.
+
+    Args:
+        config: The run's observation.
+        humanoid: The model.
+        normalised: Whether each entry of the flat observation is normalised. Shape: (D,); a feature counts as
+            normalised when all its entries are (entries past D: not).
+    """
+    start, features = 0, []
+    for name, width in observation_layout(config, humanoid).items():
+        entries = np.asarray(normalised[start : start + width], dtype=bool)
+        features.append({"name": name, "width": width, "normalised": bool(len(entries) == width and entries.all())})
         start += width
+    return features
+
+
+def onnx_spec(config: ObservationConfig, humanoid: Humanoid, features: list[dict[str, Any]], action_scale: float,
+              action_clip: float | None) -> dict[str, Any]:  # fmt: skip
+    """The sidecar's description of a PPO-style ONNX policy (observation and next reference hinges -> the clipped
+    action mean and PD targets): per tensor its name, shape ("batch" first), meaning and, where it has one, the layout
+    of its last axis; and the policy's action scale, clip, observation and control rate.
+
+    Args:
+        config: The run's observation.
+        humanoid: The model.
+        features: :func:`feature_layout` of the observation.
+        action_scale: Radians of PD-target offset per action unit.
+        action_clip: Bound of the action (None: unclipped).
+    """
+    size = sum(f["width"] for f in features)
     actuators = [mujoco.mj_id2name(humanoid.model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) for i in range(humanoid.nu)]
-    net = cfg.network
-    spec = {
+    return {
         "inputs": [
             {"name": "observation", "shape": ["batch", size], "layout": {"features": features},
-             "meaning": f"the '{cfg.observation.kind}' tracking observation of common.sim.observation, unnormalised "
-                        f"(future frames {list(cfg.observation.future_frames)} control steps ahead)"},
+             "meaning": f"the '{config.kind}' tracking observation of common.sim.observation, unnormalised "
+                        f"(future frames {list(config.future_frames)} control steps ahead)"},
             {"name": "ref_next_hinges", "shape": ["batch", humanoid.nu], "layout": {"actuators": actuators},
              "meaning": "the reference's hinge angles one control step ahead (rad)"},
         ],
         "outputs": [
             {"name": "action", "shape": ["batch", humanoid.nu], "layout": {"actuators": actuators},
-             "meaning": f"the policy mean, clipped to +-{net.action_clip} (action units)"},
+             "meaning": f"the policy mean, clipped to +-{action_clip} (action units)"},
             {"name": "pd_targets", "shape": ["batch", humanoid.nu], "layout": {"actuators": actuators},
-             "meaning": f"PD target angles ref_next_hinges + {net.action_scale} * action (rad)"},
+             "meaning": f"PD target angles ref_next_hinges + {action_scale} * action (rad)"},
         ],
-        "policy": {"action_scale_rad": net.action_scale, "action_clip": net.action_clip,
-                   "observation": cfg.observation.kind, "control_hz": humanoid.physics.control_hz},
+        "policy": {"action_scale_rad": action_scale, "action_clip": action_clip, "observation": config.kind,
+                   "control_hz": humanoid.physics.control_hz},
     }  # fmt: skip
-    return OnnxPolicy(actor, normalizer, net.action_scale, net.action_clip).eval(), spec

@@ -4,9 +4,9 @@ The bundle is a run directory that every command reads like any other (``watch-p
 ``compare-trackers pretrained:NAME``, ``export-policy``): the run's ``config.yaml``, a ``run_info.json`` that names the
 learner, the policy file and where the policy came from (the run, its checkpoint iteration, samples, training
 minutes, machine, command and a note), and ``policy.pt``: the checkpoint's learner state cut to what the learner's
-evaluation policy reads (SuperTrack: the policy and its moving average; PPO: sizes, normaliser and network), so a
-few MB at most. ``policy.pt`` is written like a checkpoint, with its SHA-256 in ``latest.json`` beside it, and read
-like one (``weights_only``).
+evaluation policy reads (the registry's ``policy_keys``, :mod:`report.learners`; SuperTrack: the policy and its
+moving average; PPO: sizes, normaliser and network), so a few MB at most. ``policy.pt`` is written like a
+checkpoint, with its SHA-256 in ``latest.json`` beside it, and read like one (``weights_only``).
 
 Maintainers' tool, run from the repository root::
 
@@ -23,13 +23,10 @@ from pathlib import Path
 
 from common.bundled_configs import PRETRAINED_ROOT, plain_help
 from common.run.checkpoint import load_checkpoint_file, recorded_digest, save_checkpoint_file, write_pointer
+from common.run.command_line import portable_command_text, portable_path
+from report.learners import LEARNERS
 from report.runs import ReportError, load_run
 
-# What each learner's load_eval_policy reads from a checkpoint's learner state.
-POLICY_KEYS: dict[str, tuple[str, ...]] = {
-    "supertrack": ("policy", "policy_average"),
-    "ppo": ("sizes", "normalizer", "net"),
-}
 POLICY_FILE = "policy.pt"
 
 
@@ -40,22 +37,25 @@ def bundle(run_dir: str | Path, out: Path, iteration: int | None = None, note: s
         ReportError: If the run does not load, its learner has no network policy, or ``out`` exists.
     """
     run = load_run(run_dir, iteration)
-    if run.learner not in POLICY_KEYS:
+    keys = LEARNERS[run.learner].policy_keys  # what its load_eval_policy reads (load_run knows the learner)
+    if not keys:
         raise ReportError(f"{run.path}: a {run.learner} run holds no network policy to bundle")
     if out.exists():
         raise ReportError(f"{out}: already exists; remove it or choose another --name")
     state = load_checkpoint_file(run.checkpoint, sha256=recorded_digest(run.checkpoint))
-    learner = {k: v for k, v in state["learner"].items() if k in POLICY_KEYS[run.learner]}
+    learner = {k: v for k, v in state["learner"].items() if k in keys}
     out.mkdir(parents=True)
     shutil.copyfile(run.path / "config.yaml", out / "config.yaml")
     record = save_checkpoint_file({"learner": learner, "iteration": run.iteration, "meta": state.get("meta", {})},
                                   out / POLICY_FILE)  # fmt: skip
     write_pointer(out, POLICY_FILE, {POLICY_FILE: record})
+    # The bundle ships: its record names the run and its command without the training machine's paths.
+    command = run.info.get("command")
     info = {
         "learner": run.learner, "policy_file": POLICY_FILE, "motions": run.motions, "note": note,
-        "source": {"run": str(run.path), "iteration": run.iteration, "samples": run.samples,
+        "source": {"run": portable_path(str(run.path.absolute())), "iteration": run.iteration, "samples": run.samples,
                    "train_minutes": round(run.train_seconds / 60.0, 1), "seed": run.info.get("seed"),
-                   "command": run.info.get("command"),
+                   "command": portable_command_text(command) if isinstance(command, str) else command,
                    "machine": {k: run.info.get(k) for k in ("cpu", "cpu_count", "gpu", "torch", "mujoco")}},
         "samples": run.samples, "train_seconds": run.train_seconds,
     }  # fmt: skip

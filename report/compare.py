@@ -44,6 +44,8 @@ from common.motion.dataset import bundled_clip_names, load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
 from common.run.checkpoint import CheckpointError
+from common.run.command_line import portable_path
+from common.run.lock import DirectoryLock
 from common.sim.pushes import PushConfig
 from common.tools import render
 from report import figures, tables
@@ -110,7 +112,8 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
             None: every clip; 0: none.
 
     Raises:
-        ReportError: On a bad run directory, an unknown learner, or motions that cannot be loaded.
+        ReportError: On a bad run directory, an unknown learner, motions that cannot be loaded, or an ``out`` that
+            another command is writing.
     """
     if not run_dirs:
         raise ReportError("no run directory given")
@@ -140,7 +143,9 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
     # folders it made.
     made = next((p for p in reversed([out, *out.absolute().parents]) if not p.exists()), None)
     out.mkdir(parents=True, exist_ok=True)
+    lock = DirectoryLock(out, ReportError, "--out")  # one report at a time in a folder (common.run.lock)
     try:
+        lock.acquire()
         policies, results, pushed = [], [], []
         for run in runs:
             policy = export_module(run.learner).load_eval_policy(run.path, run.checkpoint, humanoid, library)
@@ -167,10 +172,13 @@ def build_report(run_dirs: Sequence[str | Path], out: str | Path, checkpoint: in
         (out / "report.html").write_text(markdown_to_html(md, out, "Tracker comparison"), encoding="utf-8")
         (out / "results.json").write_text(json.dumps(_results_json(report), indent=1) + "\n", encoding="utf-8")
         report.files.update(markdown=out / "report.md", html=out / "report.html", results=out / "results.json")
-    except BaseException:
-        if made is not None:
+    except BaseException as e:
+        refused = isinstance(e, ReportError) and not lock.held  # another command writes the folder: it stays
+        if made is not None and not refused:
             shutil.rmtree(made, ignore_errors=True)
         raise
+    finally:
+        lock.release()
     return report
 
 
@@ -307,7 +315,8 @@ def _results_json(report: Report) -> dict[str, Any]:
         "motions": report.motions, "protocol": {"starts_per_clip": report.protocol.starts_per_clip,
                                                 "max_frames": report.protocol.max_frames, "seed": report.protocol.seed},
         "notes": report.notes,
-        "runs": [{"label": run.label, "learner": run.learner, "path": str(run.path), "checkpoint": str(run.checkpoint),
+        "runs": [{"label": run.label, "learner": run.learner, "path": portable_path(str(run.path.absolute())),
+                  "checkpoint": portable_path(str(run.checkpoint.absolute())),
                   "clips": res.clips, "overall": res.overall,
                   "per_clip": {k: v.tolist() for k, v in res.per_clip.items()},
                   **({"pushed": {"overall": report.pushed[i].overall,

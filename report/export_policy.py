@@ -46,6 +46,8 @@ from common.errors import (
     one_line,
 )
 from common.run.checkpoint import CheckpointError
+from common.run.command_line import portable_path
+from report.learners import LEARNERS
 from report.runs import ReportError, export_module, load_run
 
 # The lowest opset torch's exporter writes without a version conversion (onnxruntime >= 1.14 runs it).
@@ -169,8 +171,7 @@ def _main(argv: list[str] | None) -> int:
     run = load_run(args.run, args.checkpoint)
     module = export_module(run.learner)
     if not hasattr(module, "onnx_module"):
-        name = "SAMCON" if run.learner == "samcon" else run.learner
-        fail(f"{run.path}: {name} has no network policy to export")
+        fail(f"{run.path}: {LEARNERS[run.learner].display} has no network policy to export")
     humanoid = Humanoid(run.physics())
     try:
         net, spec = module.onnx_module(run.path, run.checkpoint, humanoid)
@@ -186,7 +187,8 @@ def _main(argv: list[str] | None) -> int:
     except OSError as e:
         fail(f"{args.onnx}: cannot write it: {e.strerror or one_line(e)}; nothing was changed", EXIT_RUN_FAILED)
     sidecar = {
-        "learner": run.learner, "run_dir": str(run.path.resolve()), "checkpoint": str(run.checkpoint),
+        "learner": run.learner, "run_dir": portable_path(str(run.path.absolute())),
+        "checkpoint": portable_path(str(run.checkpoint.absolute())),
         "iteration": run.iteration, "samples": run.samples, "opset": args.opset, "dtype": "float32",
         **spec,
         "check": {"max_abs_diff_onnxruntime_torch": max_diff, "batch": CHECK_BATCH, "inputs": "standard normal"},

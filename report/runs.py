@@ -2,13 +2,12 @@
 
 A run directory (written by :mod:`common.train.training`) holds ``config.yaml``, ``run_info.json``, ``metrics.jsonl``
 and ``checkpoints/``. This module reads them without importing any learner: the learner-specific policy loading lives in
-``<learner>/export.py`` and is reached through the registry :data:`LEARNERS` (:func:`export_module`).
+``<learner>/export.py`` and is reached through the learner registry (:mod:`report.learners`, :func:`export_module`).
 """
 
 from __future__ import annotations
 
 import importlib
-import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +18,10 @@ from common.bundled_configs import resolve_run
 from common.character.humanoid import PhysicsConfig
 from common.config import ConfigError, from_dict, parse_yaml
 from common.evaluation.evaluate import EvalConfig
+from common.run.contained import check_run_directory, run_file
 from common.run.logs import read_metrics
+from common.strict_json import parse_json
+from report.learners import LEARNERS, known, missing_extra
 
 
 class ReportError(ValueError):
@@ -119,17 +121,19 @@ def load_run(path: str | Path, iteration: int | None = None) -> Run:
         iteration: Checkpoint iteration to evaluate; None: the newest.
 
     Raises:
-        ReportError: If ``path`` is not a run directory, has no (such) checkpoint, or its files are unreadable; a
-            checkpoint whose pickle asks for anything but tensors, arrays and plain values is refused unopened.
+        ReportError: If ``path`` is not a run directory, has no (such) checkpoint, its files are unreadable, or it
+            names a file outside itself (:mod:`common.run.contained`); a checkpoint whose pickle asks for anything
+            but tensors, arrays and plain values is refused unopened.
     """
     path = resolve_run(path)
     if not path.is_dir():
         raise ReportError(f"{path}: not a directory")
+    check_run_directory(path, ReportError)
     missing = [n for n in ("config.yaml", "run_info.json") if not (path / n).is_file()]
     if missing:
         raise ReportError(f"{path}: not a run directory (missing {', '.join(missing)})")
     config = _read(path / "config.yaml", lambda f: parse_yaml(f.read_text(encoding="utf-8")) or {})
-    info = _read(path / "run_info.json", lambda f: json.loads(f.read_text(encoding="utf-8")))
+    info = _read(path / "run_info.json", lambda f: parse_json(f.read_text(encoding="utf-8")))
     metrics = _read(path / "metrics.jsonl", read_metrics) if (path / "metrics.jsonl").is_file() else []
     if not isinstance(config, dict) or not isinstance(info, dict):
         raise ReportError(f"{path}: unreadable run files: config.yaml and run_info.json must each hold a mapping")
@@ -137,10 +141,10 @@ def load_run(path: str | Path, iteration: int | None = None) -> Run:
     if not learner:
         raise ReportError(f"{path}: run_info.json names no learner")
     if learner not in LEARNERS:
-        raise ReportError(f"{path}: run_info.json names an unknown learner {learner!r} (known: {', '.join(LEARNERS)})")
+        raise ReportError(f"{path}: run_info.json names an unknown learner {learner!r} (known: {known()})")
     if info.get("policy_file"):
         # A run without training checkpoints (SAMCON): its learner's export module reads this one file.
-        ckpt = path / str(info["policy_file"])
+        ckpt = run_file(path, str(info["policy_file"]), ReportError, "run_info.json's policy_file")
         if not ckpt.is_file():
             raise ReportError(f"{path}: unfinished run: no {info['policy_file']} (run_info.json names it)")
         return Run(path=path, label=f"{learner}:{path.name}", learner=learner, config=dict(config), info=info,
@@ -158,27 +162,22 @@ def load_run(path: str | Path, iteration: int | None = None) -> Run:
     )  # fmt: skip
 
 
-# The learners a run directory may name, and the module that loads each one's evaluation policy
-# (``load_eval_policy(run_dir, checkpoint, humanoid, library)``). A name read from a run directory is looked up
-# here and nowhere else, so a run directory cannot choose what is imported.
-LEARNERS: dict[str, str] = {
-    "supertrack": "supertrack.export",
-    "ppo": "ppo.export",
-    "samcon": "samcon.export",
-}
-
-
 def export_module(learner: str) -> ModuleType:
-    """The registered export module of ``learner`` (see :data:`LEARNERS`), which provides ``load_eval_policy``.
+    """The registered export module of ``learner`` (the registry :data:`report.learners.LEARNERS`), which provides
+    ``load_eval_policy``.
 
     Raises:
-        ReportError: If the learner is not registered (nothing is imported then).
+        ReportError: If the learner is not registered, or its optional dependencies are not installed (nothing is
+            imported then).
     """
     if learner not in LEARNERS:
-        raise ReportError(f"unknown learner {learner!r} (known: {', '.join(LEARNERS)})")
-    module = importlib.import_module(LEARNERS[learner])
+        raise ReportError(f"unknown learner {learner!r} (known: {known()})")
+    missing = missing_extra(learner)
+    if missing:
+        raise ReportError(missing)
+    module = importlib.import_module(LEARNERS[learner].export)
     if not hasattr(module, "load_eval_policy"):
-        raise ReportError(f"{LEARNERS[learner]} defines no load_eval_policy")
+        raise ReportError(f"{LEARNERS[learner].export} defines no load_eval_policy")
     return module
 
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from common.evaluation import metrics as M
 from common.evaluation.evaluate import EvalResult
+from common.run.command_line import portable_command_text
 from report.figures import world_model_keys
 from report.runs import Run, method_groups
 
@@ -244,10 +245,11 @@ def runs_table(runs: list[Run]) -> str:
 
 
 def configs_block(runs: list[Run]) -> str:
-    """Every run's resolved config and command line, as fenced JSON."""
+    """Every run's resolved config and command line (without the training machine's paths), as fenced JSON."""
     parts = []
     for run in runs:
-        parts.append(f"**{run.label}** (`{run.info.get('command', '?')}`)\n")
+        command = run.info.get("command")
+        parts.append(f"**{run.label}** (`{portable_command_text(command) if isinstance(command, str) else '?'}`)\n")
         parts.append("```json\n" + json.dumps(run.config, indent=1, default=str) + "\n```\n")
     return "\n".join(parts)
 

@@ -51,8 +51,8 @@ Guide = Callable[[int, np.ndarray], np.ndarray]
 
 class ExternalForce(Protocol):
     """An external generalised force on the character (MuJoCo's ``qfrc_applied``, see
-    :class:`common.sim.sim.BatchedSim`), a function of the clip frame and the state, held over each control step like
-    the PD targets. The tracker itself applies none (the gym and the evaluator have no such force); the search, the
+    :class:`common.sim.sim.BatchedSim`), a function of the clip frame and the state, held over each control step
+    like the PD targets. The tracker itself applies none (the gym and the evaluator have no such force); the search, the
     replay, the linearisation and the polish take one so that a path can be made and judged under it. A path made
     with one is still open loop: replayed with the same force from the same start it passes through the same states.
 

@@ -29,6 +29,7 @@ from common.evaluation.evaluate import EvalResult
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
 from common.run.checkpoint import CheckpointError
+from common.run.command_line import portable_args
 from common.run.directory import RunDirError
 from common.sim.collect import CollectorError
 from common.train.distributed import DistributedError, World, from_environment
@@ -70,6 +71,7 @@ class TrainingCommand:
         user_errors: Exceptions from building the learner that are the user's to fix (one line, exit 2; a
             collector worker that fails to start: exit 1, its traceback on the lines after). A collector worker's
             failure during the run always ends so.
+        module: The module ``python -m`` / ``torchrun -m`` runs (default ``<name>.train``).
     """
 
     name: str
@@ -83,6 +85,11 @@ class TrainingCommand:
     check: Callable[[Any, Humanoid, MotionLibrary, Any], None] | None = None
     info: Callable[[Any], dict[str, Any]] | None = None
     user_errors: tuple[type[BaseException], ...] = field(default_factory=tuple)
+    module: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.module:
+            object.__setattr__(self, "module", f"{self.name}.train")
 
     def parser(self) -> argparse.ArgumentParser:
         """The command's argument parser: the shared options, then the learner's own."""
@@ -141,12 +148,13 @@ def _rank_device(cfg: Any, world: World, config_path: str) -> Any:
 
 def _launch_info(command: TrainingCommand, world: World) -> dict[str, Any]:
     """run_info.json's record of a data-parallel launch: the world size and the command as torchrun ran it (a
-    rank's own argv names the module's file)."""
+    rank's own argv names the module's file), with no absolute path of this machine (:mod:`common.run.command_line`;
+    a single process's command is recorded the same way by :meth:`common.run.directory.RunDir.write_run_info`)."""
     if not world.distributed:
         return {}
     per_node = os.environ.get("LOCAL_WORLD_SIZE", str(world.size))
-    return {"world_size": world.size,
-            "command": f"torchrun --nproc_per_node={per_node} -m {command.name}.train {shlex.join(sys.argv[1:])}"}
+    args = shlex.join(portable_args(sys.argv[1:]))
+    return {"world_size": world.size, "command": f"torchrun --nproc_per_node={per_node} -m {command.module} {args}"}
 
 
 def _train(command: TrainingCommand, argv: Sequence[str] | None, world: World) -> EvalResult | None:
@@ -203,6 +211,7 @@ def _train(command: TrainingCommand, argv: Sequence[str] | None, world: World) -
             signal.signal(signal.SIGTERM, previous_term)
     finally:
         learner.close()
+        run_dir.unlock()  # taken by start() on the main process
     if result is None:  # a rank other than 0
         return None
     print(result.table())
