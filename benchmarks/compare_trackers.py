@@ -41,7 +41,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from common.errors import non_negative_int  # noqa: E402
+from common.cli import non_negative_int  # noqa: E402
 from common.run.logs import read_metrics  # noqa: E402
 from common.strict_json import parse_json  # noqa: E402
 from report.compare import main as compare_main  # noqa: E402

@@ -26,8 +26,7 @@ import torch
 
 from common.bundled_configs import plain_help
 from common.character.humanoid import Humanoid
-from common.config import ConfigError
-from common.errors import (
+from common.cli import (
     EXIT_RUN_FAILED,
     MAX_FRAMES,
     CommandParser,
@@ -39,6 +38,7 @@ from common.errors import (
     os_error_line,
     positive_int,
 )
+from common.config import ConfigError
 from common.evaluation.evaluate import EvalConfig, EvalResult, Policy, evaluate
 from common.motion.dataset import bundled_clip_names, load_motions
 from common.motion.library import MotionLibrary

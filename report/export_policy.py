@@ -35,8 +35,7 @@ from torch import nn
 
 from common.bundled_configs import plain_help
 from common.character.humanoid import Humanoid
-from common.config import ConfigError, atomic_output
-from common.errors import (
+from common.cli import (
     EXIT_RUN_FAILED,
     CommandParser,
     check_output_file,
@@ -45,6 +44,7 @@ from common.errors import (
     non_negative_int,
     one_line,
 )
+from common.config import ConfigError, atomic_output
 from common.run.checkpoint import CheckpointError
 from common.run.command_line import portable_path
 from report.learners import LEARNERS

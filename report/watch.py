@@ -23,8 +23,7 @@ import numpy as np
 
 from common.bundled_configs import PRETRAINED_ROOT, plain_help
 from common.character.humanoid import Humanoid
-from common.config import ConfigError
-from common.errors import (
+from common.cli import (
     EXIT_NO_RENDERER,
     EXIT_RUN_FAILED,
     MAX_FRAMES,
@@ -37,6 +36,7 @@ from common.errors import (
     one_line,
     pixels,
 )
+from common.config import ConfigError
 from common.motion.dataset import load_motions
 from common.motion.motion import MotionFormatError
 from common.run.checkpoint import CheckpointError

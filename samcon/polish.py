@@ -18,7 +18,7 @@ optimises the targets of every frame together from the simulator's own derivativ
 3. **Backward pass**: the Riccati-like recursion of iLQR gives an open-loop change ``k_t`` and a feedback ``K_t`` per
    step (``Q_uu`` regularised by ``mu``, raised when it is not positive definite or a step fails).
 4. **Forward pass**: ``u_t = u_t + alpha k_t + K_t (x_t' - x_t)`` rolled out in the gym's own physics
-   (:class:`common.sim.sim.BatchedSim`, every step size ``alpha`` a character of one batch); the cheapest rollout
+   (:class:`common.sim.physics.BatchedSim`, every step size ``alpha`` a character of one batch); the cheapest rollout
    that lowers the true cost and does not fall (the evaluator's head rule) is the new path. Its targets are the
    ones it applied, so the result is again an open-loop path that replays bit-exactly from the clip's start.
 5. **Windows** (``polish.window``): over a whole 512-frame path at once the rollouts are too sensitive to the early
@@ -48,7 +48,7 @@ import numpy as np
 from common.character.humanoid import Humanoid
 from common.character.kinematics import ForwardKinematics
 from common.character.state import CharacterState
-from common.sim.sim import BatchedSim
+from common.sim.physics import BatchedSim
 from samcon.config import CostConfig, LqrConfig, PolishConfig
 from samcon.cost import tracking_cost
 from samcon.lqr import linearise, nominal_states, riccati, state_weights

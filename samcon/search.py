@@ -13,7 +13,7 @@ has fallen (the evaluator's head rule), the search goes back ``backtrack_segment
 with more rounds. At the end, the lowest-cost kept sample is traced back through its parents: the open-loop
 trajectory.
 
-The physics is :class:`common.sim.sim.BatchedSim`, stepped one control step per rollout like the gym, so that the
+The physics is :class:`common.sim.physics.BatchedSim`, stepped one control step per rollout like the gym, so that the
 trajectory replays bit-exactly in the shared evaluator from the same start state (MuJoCo's solver warm start is
 reset at every rollout call, so a segment simulated as one long rollout would not).
 """
@@ -32,7 +32,7 @@ from common.character.kinematics import ForwardKinematics
 from common.character.state import CharacterState
 from common.motion.library import MotionLibrary
 from common.sim.gym import GymConfig, TrackingGym
-from common.sim.sim import BatchedSim
+from common.sim.physics import BatchedSim
 from samcon.config import CostConfig, SearchConfig
 from samcon.cost import COST_TERMS, feedback_features, tracking_cost
 
@@ -51,7 +51,7 @@ Guide = Callable[[int, np.ndarray], np.ndarray]
 
 class ExternalForce(Protocol):
     """An external generalised force on the character (MuJoCo's ``qfrc_applied``, see
-    :class:`common.sim.sim.BatchedSim`), a function of the clip frame and the state, held over each control step
+    :class:`common.sim.physics.BatchedSim`), a function of the clip frame and the state, held over each control step
     like the PD targets. The tracker itself applies none (the gym and the evaluator have no such force); the search, the
     replay, the linearisation and the polish take one so that a path can be made and judged under it. A path made
     with one is still open loop: replayed with the same force from the same start it passes through the same states.

@@ -29,8 +29,8 @@ import numpy as np
 from common.bundled_configs import config_help, default_config, resolve_config
 from common.character.humanoid import Humanoid
 from common.character.kinematics import ForwardKinematics
+from common.cli import CommandParser, fail, non_negative_int, one_line_errors, os_error_line
 from common.config import ConfigError, atomic_output, load_config
-from common.errors import CommandParser, fail, non_negative_int, one_line_errors, os_error_line
 from common.evaluation.evaluate import EvalConfig, EvalResult, evaluate
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
@@ -429,7 +429,7 @@ def cli_overrides(args: argparse.Namespace) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> None:
     """``track-samcon``: bad input ends in one line and exit status 2 with no run directory made; a failure during
-    the run (a full disk) in one line and exit status 1 (:mod:`common.errors`)."""
+    the run (a full disk) in one line and exit status 1 (:mod:`common.cli`)."""
     with one_line_errors(ConfigError, RunDirError, MotionFormatError):
         _main(argv)
 

@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from common.cli import output_dir_problem
 from common.config import atomic_output, load_config, save_config
-from common.errors import output_dir_problem
 from common.run.checkpoint import (
     LEGACY_LATEST_NAME,
     POINTER_NAME,

@@ -19,8 +19,8 @@ from typing import Any, TextIO
 
 import tqdm
 
+from common.cli import one_line, take_thread_failure
 from common.config import atomic_output
-from common.errors import one_line, take_thread_failure
 from common.run.directory import RunDir
 from common.strict_json import parse_json
 
@@ -48,7 +48,7 @@ class MetricsLogger:
 
     A write that fails (a full disk) raises ``OSError`` naming ``metrics.jsonl`` or ``tb/``, at the record it failed
     on: TensorBoard's writer thread is flushed after every record, and its failure, which a command keeps from
-    printing a traceback (:func:`common.errors.one_line_errors`), is raised here.
+    printing a traceback (:func:`common.cli.one_line_errors`), is raised here.
 
     Args:
         run_dir: A :class:`RunDir` or a directory path.

@@ -22,9 +22,9 @@ from common.character.humanoid import BodyGeometry, Humanoid, PhysicsConfig
 from common.character.kinematics import ForwardKinematics
 from common.character.state import CharacterState
 from common.motion.library import MotionLibrary
+from common.sim.physics import BatchedSim
 from common.sim.pushes import impulse_velocity_change
 from common.sim.rewards import RewardConfig, TerminationConfig, TrackingReward, termination
-from common.sim.sim import BatchedSim
 from common.sim.terrain import ClipTerrains
 
 

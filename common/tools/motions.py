@@ -19,8 +19,7 @@ from pathlib import Path
 
 from common.bundled_configs import plain_help
 from common.character.humanoid import BodyGeometry, Humanoid, PhysicsConfig
-from common.config import ConfigError
-from common.errors import (
+from common.cli import (
     EXIT_NO_RENDERER,
     EXIT_RUN_FAILED,
     MAX_FRAMES,
@@ -33,6 +32,7 @@ from common.errors import (
     pixels,
     positive_float,
 )
+from common.config import ConfigError
 from common.motion.dataset import load_motions, resolve_clips, save_dataset
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError

@@ -7,7 +7,7 @@ budget with a clean Ctrl-C or SIGTERM (the first finishes the iteration, checkpo
 without saving), print the final table. Under ``torchrun`` the same command is one rank of a data-parallel run
 (:mod:`common.train.distributed`): every rank validates its inputs and builds its learner; rank 0 alone writes. An
 error a user can fix ends in one line (``error: ...``) and exit status 2 (bad input, nothing written) or 1 (a failure
-during the run); a bug keeps its traceback (:mod:`common.errors`).
+during the run); a bug keeps its traceback (:mod:`common.cli`).
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from types import FrameType
 from typing import Any
 
 from common.character.humanoid import Humanoid
+from common.cli import EXIT_RUN_FAILED, CommandParser, fail, one_line, one_line_errors, os_error_line
 from common.config import ConfigError
-from common.errors import EXIT_RUN_FAILED, CommandParser, fail, one_line, one_line_errors, os_error_line
 from common.evaluation.evaluate import EvalResult
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
@@ -124,7 +124,7 @@ def train_main(command: TrainingCommand, argv: Sequence[str] | None = None) -> E
     Bad options or inputs end in one line and exit status 2 with nothing written (the run directory is created only
     once the config, the motions, ``--out`` and the learner are accepted); a failure during the run (a full disk, a
     NaN loss, a failed collector worker) ends in one line and exit status 1, the run directory keeping its last
-    checkpoint (:mod:`common.errors`).
+    checkpoint (:mod:`common.cli`).
     """
     with one_line_errors(ConfigError, MotionFormatError, CheckpointError, RunDirError, DistributedError):
         world = from_environment()

@@ -18,8 +18,8 @@ import torch
 from common.bundled_configs import config_help, default_config
 from common.bundled_configs import resolve_config as find_config
 from common.character.humanoid import Humanoid
+from common.cli import EXIT_RUN_FAILED, CommandError, non_negative_float, non_negative_int, one_line, os_error_line
 from common.config import ConfigError, load_config
-from common.errors import EXIT_RUN_FAILED, CommandError, non_negative_float, non_negative_int, one_line, os_error_line
 from common.motion.dataset import load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError

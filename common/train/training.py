@@ -24,12 +24,12 @@ import numpy as np
 import torch
 
 from common.character.humanoid import Humanoid
-from common.config import to_dict
-from common.errors import (
+from common.cli import (
     EXIT_RUN_FAILED,
     CommandError,
     one_line,
 )
+from common.config import to_dict
 from common.evaluation.evaluate import EvalConfig, EvalResult, Policy, evaluate
 from common.motion.library import MotionLibrary
 from common.run.checkpoint import load_checkpoint_file, recorded_digest

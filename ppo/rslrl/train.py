@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from common.character.humanoid import Humanoid
-from common.errors import fail, one_line_errors
+from common.cli import fail, one_line_errors
 from common.motion.library import MotionLibrary
 from common.train.command import TrainingCommand, train_main
 from common.train.distributed import World

@@ -20,7 +20,7 @@ import numpy as np
 
 from common.character.humanoid import Humanoid
 from common.character.state import CharacterState
-from common.sim.sim import BatchedSim
+from common.sim.physics import BatchedSim
 from samcon.config import LqrConfig, PolishConfig
 from samcon.lqr import force_response, linearise, nominal_states, state_weights
 from samcon.polish import (

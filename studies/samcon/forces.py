@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from common.character.humanoid import Humanoid
-from common.sim.sim import BatchedSim
+from common.sim.physics import BatchedSim
 from samcon.search import ExternalForce
 
 

@@ -14,7 +14,7 @@ from common.character.humanoid import Humanoid
 from common.evaluation.evaluate import EvalConfig, evaluate
 from common.motion.dataset import load_motions
 from common.sim.gym import GymConfig, TrackingGym
-from common.sim.sim import BatchedSim
+from common.sim.physics import BatchedSim
 from samcon.config import LqrConfig
 from samcon.lqr import LqrPath, LqrPolicy, linearise, nominal_states, riccati, stabilise
 

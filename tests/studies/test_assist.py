@@ -15,7 +15,7 @@ from common.character.humanoid import Humanoid
 from common.evaluation.evaluate import EvalConfig, evaluate
 from common.maths.rotations import quat_from_axis_angle, quat_mul, quat_rotate, quat_rotate_inv
 from common.motion.dataset import load_motions
-from common.sim.sim import BatchedSim
+from common.sim.physics import BatchedSim
 from samcon.config import CostConfig, SearchConfig
 from samcon.feedback import ClipPlan, open_loop_policy
 from samcon.lqr import linearise, nominal_states

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from common.character.humanoid import Humanoid
-from common.sim.sim import BatchedSim
+from common.sim.physics import BatchedSim
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Tests of common.errors: the one error path of every command (one line, exit status 2 or 1, bugs keep tracebacks)."""
+"""Tests of common.cli: the one error path of every command (one line, exit status 2 or 1, bugs keep tracebacks)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,7 @@ from typing import Any
 
 import pytest
 
-from common.config import ConfigError
-from common.errors import (
+from common.cli import (
     EXIT_BAD_INPUT,
     EXIT_RUN_FAILED,
     CommandError,
@@ -24,6 +23,7 @@ from common.errors import (
     output_dir_problem,
     output_file_problem,
 )
+from common.config import ConfigError
 
 
 def _run(body: Any, *expected: type[BaseException]) -> None:
