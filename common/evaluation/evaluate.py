@@ -24,13 +24,19 @@ every 2 s after), applied between two control steps so that the policy sees it.
 
 **Motion quality** (:mod:`common.evaluation.metrics`): ``vel_err`` and ``accel_err`` (UHC/PHC: the first and second
 differences of every body's position against the reference's, mm/frame and mm/frame^2), ``foot_slide`` and
-``foot_slide_ref`` (the horizontal speed of a foot while its lowest point is below 2 cm, in mm/frame, of
-the character and of the reference: the clip's own sliding), ``target_jitter`` (the second difference of the PD targets
-the policy returned, rad/frame^2). Differences run over consecutive scored frames of one episode only (the start state
-before the first step is not one), so they follow MPJPE's rule: under the full horizon a failed episode's frames count;
-a blown-up character, scored frozen, moves no more and its targets are held at the last ones before the blow-up.
-Velocity, acceleration and jitter average their differences like the other per-frame figures; the foot sliding averages
-over the (foot, step) pairs in contact, and over the clips with any.
+``foot_slide_ref`` (the horizontal speed of a foot while its lowest point is less than 2 cm above the ground, in
+mm/frame, of the character and of the reference: the clip's own sliding), ``target_jitter`` (the second difference of
+the PD targets the policy returned, rad/frame^2). Differences run over consecutive scored frames of one episode only
+(the start state before the first step is not one), so they follow MPJPE's rule: under the full horizon a failed
+episode's frames count; a blown-up character, scored frozen, moves no more and its targets are held at the last ones
+before the blow-up. Velocity, acceleration and jitter average their differences like the other per-frame figures; the
+foot sliding averages over the (foot, step) pairs in contact, and over the clips with any.
+
+**Terrain.** A clip with a terrain is played and judged on it, with no setting to change: its characters are
+simulated on it (:mod:`common.sim.terrain`), the failure rules compare heights above the ground under the point
+measured (:func:`common.sim.rewards.termination`), a foot touches the ground while its clearance above the terrain
+under it is below 2 cm (:class:`_MotionTrace`), and a push is the same impulse (its velocity change depends on the
+pose alone, :mod:`common.sim.pushes`). Clips without a terrain get the flat judge's numbers to the bit.
 
 A policy is any callable from the gym's :class:`~common.sim.gym.StepResult` to PD targets (N, nu); learners pass their
 deterministic (mean, no noise) policy.
@@ -50,6 +56,7 @@ from common.motion.library import MotionLibrary
 from common.sim.gym import GymConfig, StepResult, TrackingGym
 from common.sim.pushes import PushConfig, push_schedule
 from common.sim.rewards import TerminationConfig
+from common.sim.terrain import ClipTerrains, ground_clearance
 
 Policy = Callable[[StepResult], np.ndarray]
 FRAME_METRICS = ("mpjpe_g", "mpjpe_l", "root_pos_err", "root_rot_err", "body_rot_err", "joint_vel_err",
@@ -151,7 +158,7 @@ def evaluate(
         result = gym.reset(clips=clips, times=times)
         n, horizon = len(clips), int(episode_max.max())
         per_frame = {key: np.zeros((horizon, n)) for key in FRAME_METRICS}
-        motion = _MotionTrace(humanoid, horizon, n)
+        motion = _MotionTrace(humanoid, horizon, n, ClipTerrains.of(library), clips)
         body_err = np.zeros((horizon, n))
         valid = np.zeros((horizon, n), dtype=bool)
         alive = np.ones(n, dtype=bool)  # no failure yet
@@ -255,14 +262,22 @@ class _MotionTrace:
     Keeps the last three scored frames of every episode (each character plays one episode: the evaluator never resets)
     and writes the difference ending at frame t into row t; :meth:`diff_valid` says which rows are real differences.
 
+    A foot's height is its clearance above its clip's ground (:func:`common.sim.terrain.ground_clearance`: on a
+    terrain the least gap over its collision geom's points to the ground under each; on the flat floor the height of
+    its lowest point, as before terrains existed), for the simulated character and the reference alike (both on the
+    clip's terrain). The slide itself stays horizontal (x, y): along a 12 deg slope a foot's slide reads 2 % short.
+
     Args:
         humanoid: The model (feet and their collision geoms).
         horizon: Frames per episode at most.
         n: Episodes.
+        terrains: The clips' terrains.
+        clips: Clip of every episode (the evaluator never resets, so it stays). Shape: (n,).
     """
 
-    def __init__(self, humanoid: Humanoid, horizon: int, n: int) -> None:
+    def __init__(self, humanoid: Humanoid, horizon: int, n: int, terrains: ClipTerrains, clips: np.ndarray) -> None:
         self.geometry, self.feet = BodyGeometry(humanoid), humanoid.foot_indices
+        self.terrains, self.clips = terrains, np.asarray(clips, dtype=np.int64)
         self.per_frame = {key: np.zeros((horizon, n)) for key in DIFF_METRICS}
         self.slide = {key: np.zeros((horizon, n)) for key in SLIDE_METRICS}  # summed over the feet in contact
         self.contacts = {key: np.zeros((horizon, n)) for key in SLIDE_METRICS}  # feet in contact
@@ -276,8 +291,8 @@ class _MotionTrace:
             self.held_targets = targets.copy()
         targets = np.where(frozen[:, None], self.held_targets, targets)
         self.held_targets = targets
-        sim_h = self.geometry.lowest_points(sim.body_pos, sim.body_rot)[:, self.feet]
-        ref_h = self.geometry.lowest_points(ref.body_pos, ref.body_rot)[:, self.feet]
+        sim_h = ground_clearance(self.terrains, self.clips, self.geometry, sim.body_pos, sim.body_rot)[:, self.feet]
+        ref_h = ground_clearance(self.terrains, self.clips, self.geometry, ref.body_pos, ref.body_rot)[:, self.feet]
         self.window = [*self.window[-2:], (sim.body_pos.copy(), ref.body_pos.copy(), targets, sim_h, ref_h)]
         if len(self.window) < 2:
             return

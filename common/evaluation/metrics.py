@@ -63,9 +63,11 @@ DEFAULT_MAX_FRAMES = 512
 """Episode length (frames) that :func:`episode_length_ratio` divides by unless told otherwise."""
 
 FOOT_CONTACT_HEIGHT_M = 0.02
-"""A foot touches the floor while the lowest point of its collision geom is below this height (metres), for the
-simulated character and the reference alike. The reference's planted feet float up to about 2.5 cm (walk's push-off)
-and sink up to 6 cm into the floor; a simulated planted foot sits within a few millimetres of it."""
+"""A foot touches the ground while the lowest point of its collision geom is less than this (metres) above it (on a
+clip's terrain: the least gap between the geom and the terrain under it, measured by the evaluator with
+:func:`common.sim.terrain.ground_clearance`), for the simulated character and the reference alike. The reference's
+planted feet float up to about 2.5 cm (walk's push-off) and sink up to 6 cm into the floor; a simulated planted foot
+sits within a few millimetres of it."""
 
 
 @dataclass(frozen=True)
@@ -105,7 +107,7 @@ _METRIC_LIST: tuple[MetricInfo, ...] = (
     MetricInfo("root_ang_vel_err", "rad/s", False, "root angular velocity difference norm"),
     MetricInfo("accel_err", "mm/frame^2", False, "mean body acceleration error (UHC/PHC), second differences"),
     MetricInfo("vel_err", "mm/frame", False, "mean body velocity error (UHC/PHC), first differences"),
-    MetricInfo("foot_slide", "mm/frame", False, "mean horizontal foot speed while the foot touches the floor"),
+    MetricInfo("foot_slide", "mm/frame", False, "mean horizontal foot speed while the foot touches the ground"),
     MetricInfo("foot_slide_ref", "mm/frame", False, "the same for the reference: the clip's own sliding", False),
     MetricInfo("target_jitter", "rad/frame^2", False, "mean absolute second difference of the policy's PD targets"),
     MetricInfo("mpjpe_g_succ", "mm", False, "MPJPE-g over the episodes that succeed (PHC/UHC; read with success)"),
@@ -357,13 +359,14 @@ def foot_slide_mm(
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Horizontal displacement of each foot from one frame to the next, and whether it touched the floor at both.
 
-    A foot touches the floor at a frame while its lowest point is below ``threshold_m``; a step counts as sliding
-    only when the foot touches at both of its frames. Average the displacements over the steps in contact with
-    :func:`contact_mean` (a foot in the air slides by definition never).
+    A foot touches the floor at a frame while its lowest point is less than ``threshold_m`` above the ground (the
+    caller measures ``foot_height`` from the ground: z on the flat floor, the clearance above a clip's terrain); a
+    step counts as sliding only when the foot touches at both of its frames. Average the displacements over the steps
+    in contact with :func:`contact_mean` (a foot in the air slides by definition never).
 
     Args:
         foot_pos: Foot body positions in metres over consecutive frames of one episode (Z up), shape (..., T, F, 3).
-        foot_height: Height of each foot's lowest point in metres, shape (..., T, F).
+        foot_height: Height of each foot's lowest point above the ground in metres, shape (..., T, F).
         threshold_m: Contact height.
 
     Returns:

@@ -12,8 +12,10 @@ time t; ``ref_next`` is the reference at t + dt, the pose the next PD targets sh
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 
 import mujoco
 import numpy as np
@@ -25,7 +27,7 @@ from common.motion.library import MotionLibrary
 from common.sim.physics import BatchedSim
 from common.sim.pushes import impulse_velocity_change
 from common.sim.rewards import RewardConfig, TerminationConfig, TrackingReward, termination
-from common.sim.terrain import ClipTerrains
+from common.sim.terrain import ClipTerrains, ground_clearance
 
 
 @dataclass(frozen=True)
@@ -284,7 +286,7 @@ class TrackingGym:
             cfg = self.config.termination
             ref_lowest = None
             if cfg.contact_clearance is not None and cfg.fall_contact != "off":
-                ref_lowest = self.geometry.lowest_points(ref.body_pos, ref.body_rot)
+                ref_lowest = ground_clearance(self.terrains, self.clip, self.geometry, ref.body_pos, ref.body_rot)
         finally:
             diverged = pending.result()
         if diverged.any():
@@ -295,9 +297,12 @@ class TrackingGym:
         self.frame += 1  # in place, as before: equal to frame
         state = self.fk(self.sim.qpos.copy(), self.sim.qvel.copy())
         reward, terms = self.reward_fn(state, ref_prepared)
-        # Only the fall-contact rule looks at the lowest points (0.6 ms at N = 256): computed when it is on.
-        lowest = None if cfg.fall_contact == "off" else self.geometry.lowest_points(state.body_pos, state.body_rot)
-        terminated, rules = termination(cfg, self.humanoid, state, ref, self.frame, lowest, ref_lowest)
+        # Only the fall-contact rule looks at the lowest points (0.6 ms at N = 256): computed when it is on. On
+        # terrain every height the rules compare is above the ground of the character's clip (common/sim/rewards.py).
+        lowest = None
+        if cfg.fall_contact != "off":
+            lowest = ground_clearance(self.terrains, self.clip, self.geometry, state.body_pos, state.body_rot)
+        terminated, rules = termination(cfg, self.humanoid, state, ref, self.frame, lowest, ref_lowest, self._ground())
         terminated |= diverged
         reward[diverged] = 0.0
         truncated = np.zeros(self.num_envs, dtype=bool)
@@ -373,6 +378,11 @@ class TrackingGym:
         zeros = np.zeros(self.num_envs, dtype=bool)
         return self._result(np.zeros(self.num_envs), {}, zeros, zeros.copy(), self._state, self._ref, self._ref_next,
                             self.phase(), {})  # fmt: skip
+
+    def _ground(self) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
+        """The ground's height under world points (x, y) of shape (N, K) of every character, on its clip's terrain
+        (for the termination rules); None for a library without terrain: the flat floor, the rules' flat arithmetic."""
+        return partial(self.terrains.height, self.clip.copy()) if self.terrains.any else None
 
     def push(self, ids: np.ndarray, impulses: np.ndarray) -> None:
         """Applies an impulse at the pelvis of characters ``ids`` (robustness tests), between two control steps.

@@ -4,6 +4,11 @@ A push is an impulse p (N s) applied at the pelvis's frame origin, horizontal, i
 the generalised velocities at once by dqvel = M(q)^-1 J(q)^T p (J: the 3 x nv translational Jacobian of that point,
 M: the joint-space inertia matrix), the impulsive limit of a short force; the character's total linear momentum
 then changes by exactly p when nothing touches it.
+
+Nothing here depends on the ground: M and J are the pose's, so a character on its clip's terrain gets the velocity
+change it would get on the flat floor in that pose (the gym computes it in the character's own model, without the
+heightfield, ``tests/common/test_judge_terrain.py``), and the schedule's impulses are horizontal whatever the ground's
+slope.
 """
 
 from __future__ import annotations

@@ -10,10 +10,16 @@ rotation, body positions and rotations, joint velocities and end effectors, as a
 Termination: SuperTrack's head-height rule, PARC's distance rules and DeepMimic's fall contact; the rules
 ``root_height_error`` and ``contact_clearance`` are measured against the reference, so that a clip whose reference
 lies on the ground (crawl, roll, getting up) does not end an episode that tracks it.
+
+On a clip's terrain every height in a rule is a height above the ground under the point measured (its clip's terrain,
+:meth:`common.sim.terrain.ClipTerrains.height`, the surface MuJoCo collides with), for the simulated character and the
+reference alike; on the flat floor that is the height itself, with the same arithmetic as before terrains existed
+(:func:`termination`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -92,17 +98,20 @@ class TerminationConfig:
     Attributes:
         max_episode_frames: Truncate after this many control steps (SuperTrack: 512).
         grace_frames: Failure rules are checked only once an episode has lasted this many steps (SuperTrack: 48).
-        head_height_error: Terminate when the head height differs from the reference by more than this (m).
+        head_height_error: Terminate when the head's height above the ground under it differs by more than this (m)
+            from the reference head's above the ground under that.
         root_pos_error: Terminate when the root is farther than this from the reference root (m).
         root_rot_error: Terminate when the root rotation differs by more than this (rad).
         body_pos_error: Terminate when any body is farther than this from its reference (m).
-        min_root_height: Terminate when the root is lower than this (m, absolute: the reference of crawl, roll and
-            the get-ups breaks 0.3 m in 25-55 % of their frames).
-        root_height_error: Terminate when the root is more than this below the reference root (m).
+        min_root_height: Terminate when the root is lower than this above the ground under it (m; not relative to
+            the reference: the reference of crawl, roll and the get-ups breaks 0.3 m in 25-55 % of their frames).
+        root_height_error: Terminate when the root's height above the ground under it is more than this (m) below
+            the reference root's above the ground under that.
         fall_contact: Terminate on ground contact of ``deepmimic`` (pelvis, torso, head) or ``non_foot`` bodies.
-        contact_height: A body whose lowest point is below this height (m) touches the ground.
-        contact_clearance: When set, a fall contact counts only for bodies whose reference lowest point is above
-            this height (m) at that frame: bodies the reference itself puts on (or near) the ground may touch it.
+        contact_height: A body whose lowest point is less than this (m) above the ground touches it.
+        contact_clearance: When set, a fall contact counts only for bodies whose reference lowest point is more than
+            this (m) above the ground at that frame: bodies the reference itself puts on (or near) the ground may
+            touch it.
         clip_end: Truncate when a one-shot clip has no frame left.
     """
 
@@ -165,8 +174,24 @@ def termination(
     episode_frames: np.ndarray,
     lowest_points: np.ndarray | None,
     ref_lowest_points: np.ndarray | None = None,
+    ground: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Failure rules after a step. Returns terminated (N,) and which rule fired, {rule: (N,) bool}.
+
+    What "height" means on a terrain, rule by rule (``ground`` given):
+
+    - ``head_height``: the head's height above the ground under the head, against the reference head's above the
+      ground under the reference head: a character one step behind its reference on stairs, standing upright, is not
+      off by the step's rise; one that fell is off by what its fall cost.
+    - ``root_height`` (``min_root_height``): the root's height above the ground under the root.
+    - ``root_below_ref`` (``root_height_error``): the root's height above the ground under it, against the reference
+      root's above the ground under that.
+    - ``fall_contact``: each body's clearance above the ground under each point of its collision geom
+      (``lowest_points`` and ``ref_lowest_points`` from :func:`common.sim.terrain.ground_clearance`).
+    - ``root_pos``, ``root_rot``, ``body_pos``: distances to the reference, which the ground does not enter.
+
+    Without ``ground`` (the flat floor, 0 everywhere) every rule compares the absolute heights, the arithmetic of the
+    flat judge; a character on the flat floor in a library with terrains gets the same numbers (its ground is 0.0).
 
     Args:
         config: The rules.
@@ -177,11 +202,15 @@ def termination(
         lowest_points: Lowest point of every body of the simulated character; needed when ``config.fall_contact`` is
             on (None otherwise: the gym skips the 0.6 ms it costs at N = 256). Shape: (N, B).
         ref_lowest_points: The same for the reference; needed when ``config.contact_clearance`` is set. (N, B).
+        ground: The ground's height under world points of each character, ``ground(x, y)`` with x, y of shape
+            (N, K), returning (N, K): its clip's terrain (the gym passes :meth:`common.sim.terrain.ClipTerrains.height`
+            of the characters' clips). None: the flat floor.
     """
     rules: dict[str, np.ndarray] = {}
-    r, h = humanoid.root_index, humanoid.head_index
+    r = humanoid.root_index
+    height = _heights_above_ground(config, humanoid, sim, ref, ground)
     if config.head_height_error is not None:
-        rules["head_height"] = np.abs(sim.body_pos[:, h, 2] - ref.body_pos[:, h, 2]) > config.head_height_error
+        rules["head_height"] = np.abs(height["sim_head"] - height["ref_head"]) > config.head_height_error
     if config.root_pos_error is not None:
         rules["root_pos"] = np.linalg.norm(sim.body_pos[:, r] - ref.body_pos[:, r], axis=-1) > config.root_pos_error
     if config.root_rot_error is not None:
@@ -190,9 +219,9 @@ def termination(
         dist = np.linalg.norm(sim.body_pos - ref.body_pos, axis=-1)
         rules["body_pos"] = dist.max(axis=-1) > config.body_pos_error
     if config.min_root_height is not None:
-        rules["root_height"] = sim.body_pos[:, r, 2] < config.min_root_height
+        rules["root_height"] = height["sim_root"] < config.min_root_height
     if config.root_height_error is not None:
-        rules["root_below_ref"] = sim.body_pos[:, r, 2] < ref.body_pos[:, r, 2] - config.root_height_error
+        rules["root_below_ref"] = height["sim_root"] < height["ref_root"] - config.root_height_error
     if config.fall_contact != "off":
         if config.fall_contact == "deepmimic":
             bodies = humanoid.fall_contact_indices
@@ -212,3 +241,28 @@ def termination(
         rules[k] &= armed
         terminated |= rules[k]
     return terminated, rules
+
+
+def _heights_above_ground(
+    config: TerminationConfig,
+    humanoid: Humanoid,
+    sim: CharacterState,
+    ref: CharacterState,
+    ground: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
+) -> dict[str, np.ndarray]:
+    """The heights the enabled rules compare, {``sim_head``, ``ref_head``, ``sim_root``, ``ref_root``: (N,)}, each
+    above the ground under its point: one ``ground`` look-up for all of them; without ``ground`` the z coordinates
+    themselves (no arithmetic)."""
+    r, h = humanoid.root_index, humanoid.head_index
+    points: dict[str, np.ndarray] = {}
+    if config.head_height_error is not None:
+        points.update(sim_head=sim.body_pos[:, h], ref_head=ref.body_pos[:, h])
+    if config.min_root_height is not None or config.root_height_error is not None:
+        points["sim_root"] = sim.body_pos[:, r]
+    if config.root_height_error is not None:
+        points["ref_root"] = ref.body_pos[:, r]
+    if ground is None or not points:
+        return {name: p[:, 2] for name, p in points.items()}
+    xyz = np.stack(list(points.values()), axis=1)  # (N, K, 3)
+    under = ground(xyz[..., 0], xyz[..., 1])
+    return {name: xyz[:, k, 2] - under[:, k] for k, name in enumerate(points)}
