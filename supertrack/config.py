@@ -217,6 +217,49 @@ class CollectConfig:
 
 
 @dataclass(frozen=True)
+class TerrainConfig:
+    """What SuperTrack observes and predicts of the ground (issue 59; PARC's tracker's features, off by default).
+    Both inputs are raw (not normalised), as PPO's ``parc`` observation leaves them (:mod:`supertrack.terrain`).
+
+    Attributes:
+        heightmap_extent: W and the policy read the root's height above the ground at a square grid of points out to
+            this distance (m) along the root's heading and across it (PARC: 1.0), each sampled where its input state
+            puts the root (in W's rollout, the predicted state); None: no heightmap.
+        heightmap_spacing: Distance between the heightmap's points (m; PARC's 0.1).
+        contact_weight: W also predicts, per body, whether the next state touches the ground (a logit per body,
+            binary cross-entropy against the simulated contacts, weighted by this); 0: no contact output.
+        contact_frames: The policy reads the reference's contact labels at t + k dt for every offset k here,
+            increasing; empty: none.
+        contact_height: A body whose collision geom comes within this height (m) of its clip's ground is in contact
+            (the simulated contacts W predicts and the reference's labels: the rule of PPO's labels).
+    """
+
+    heightmap_extent: float | None = None
+    heightmap_spacing: float = 0.1
+    contact_weight: float = 0.0
+    contact_frames: tuple[int, ...] = ()
+    contact_height: float = 0.03
+
+    def __post_init__(self) -> None:
+        c = self.contact_frames
+        if c and (min(c) < 1 or list(c) != sorted(set(c))):
+            raise ValueError(f"terrain.contact_frames must be distinct positive offsets in increasing order, got "
+                             f"{list(c)}")  # fmt: skip
+        if not (self.heightmap_spacing > 0 and self.contact_height > 0 and self.contact_weight >= 0):
+            raise ValueError(f"terrain.heightmap_spacing and contact_height must be > 0 (m) and contact_weight >= 0, "
+                             f"got {self.heightmap_spacing}, {self.contact_height}, {self.contact_weight}")  # fmt: skip
+        e = self.heightmap_extent
+        if e is not None and not e >= self.heightmap_spacing:
+            raise ValueError(f"terrain.heightmap_extent must be >= heightmap_spacing ({self.heightmap_spacing} m), "
+                             f"got {e}")  # fmt: skip
+
+    @property
+    def enabled(self) -> bool:
+        """Any terrain input or output is on."""
+        return self.heightmap_extent is not None or self.contact_weight > 0 or bool(self.contact_frames)
+
+
+@dataclass(frozen=True)
 class DiagnosticsConfig:
     """Open-loop world-model error against the simulator, logged with every evaluation.
 
@@ -249,6 +292,8 @@ class SuperTrackConfig:
         motion_weights: PARC's adaptive clip weights for the gym's starts (:mod:`common.sim.motion_weights`, the
             implementation PPO uses), multiplied with ``collect.clip_weights``; off by default.
         diagnostics: World-model error measurement.
+        terrain: The heightmap W and the policy read, W's contact prediction and the reference's contact labels the
+            policy reads; off by default.
     """
 
     train: TrainConfig = field(default_factory=TrainConfig)
@@ -259,6 +304,7 @@ class SuperTrackConfig:
     collect: CollectConfig = field(default_factory=CollectConfig)
     motion_weights: MotionWeightConfig = field(default_factory=lambda: MotionWeightConfig(enabled=False))
     diagnostics: DiagnosticsConfig = field(default_factory=DiagnosticsConfig)
+    terrain: TerrainConfig = field(default_factory=TerrainConfig)
 
     def __post_init__(self) -> None:
         train_envs = self.gym.num_envs - self.buffer.val_envs

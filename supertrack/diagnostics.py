@@ -16,11 +16,13 @@ from common.sim.buffer import CyclicBuffer
 from supertrack.models import WorldModel
 from supertrack.rollout import world_model_rollout
 from supertrack.state import BodyState
+from supertrack.terrain import TerrainInputs
 
 
 @torch.no_grad()
 def open_loop_errors(world_model: WorldModel, buffer: CyclicBuffer, horizons: Sequence[int], batch: int,
-                     rng: np.random.Generator, prefix: str = "world_model/") -> dict[str, float]:  # fmt: skip
+                     rng: np.random.Generator, prefix: str = "world_model/",
+                     terrain: TerrainInputs | None = None) -> dict[str, float]:  # fmt: skip
     """Mean per-body errors of W's open-loop prediction h frames ahead, for every horizon h.
 
     Args:
@@ -30,6 +32,7 @@ def open_loop_errors(world_model: WorldModel, buffer: CyclicBuffer, horizons: Se
         batch: Windows measured.
         rng: Draws the windows.
         prefix: Key prefix.
+        terrain: The terrain inputs, when W reads a heightmap (sampled on each window's ``clip``).
 
     Returns:
         ``{prefix}pos_err_h{h}`` (m), ``vel_err_h{h}`` (m/s), ``rot_err_h{h}`` (rad, geodesic), ``angvel_err_h{h}``
@@ -41,7 +44,9 @@ def open_loop_errors(world_model: WorldModel, buffer: CyclicBuffer, horizons: Se
     device = next(world_model.parameters()).device
     windows = buffer.sample_windows(batch, length, rng)
     sim = BodyState.unpack(torch.as_tensor(windows["sim"], device=device))
-    predicted = world_model_rollout(world_model, sim, torch.as_tensor(windows["target_rot"], device=device))
+    clip = None if terrain is None else torch.as_tensor(windows["clip"][:, 0], device=device)
+    predicted = world_model_rollout(world_model, sim, torch.as_tensor(windows["target_rot"], device=device),
+                                    terrain=terrain, clip=clip)  # fmt: skip
     out: dict[str, float] = {}
     for h in horizons:
         p, s = predicted.time(h - 1), sim.time(h)

@@ -1,7 +1,8 @@
 """Rebuilds SuperTrack's deterministic policy from a run's checkpoint, for the comparison report.
 
 Only the policy network (with its Local() normaliser, stored as module buffers in the checkpoint) and the actor's
-offset scale are needed to act: the world model, optimisers, buffers and the training gym are not rebuilt.
+offset scale are needed to act: the world model, optimisers, buffers and the training gym are not rebuilt. A policy
+that reads terrain inputs (``terrain`` config) reads those of the motions it is evaluated on.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from supertrack.config import SuperTrackConfig
 from supertrack.models import Policy
 from supertrack.normalizer import Normalizer
 from supertrack.state import STATE_LAYOUT, STATE_WIDTH, BodyState, target_rotations
+from supertrack.terrain import TerrainInputs, policy_terrain_size
 
 
 def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, library: MotionLibrary,
@@ -32,8 +34,9 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
         run_dir: The run directory (its ``config.yaml`` gives the network sizes and alpha).
         checkpoint: A checkpoint written by the trainer.
         humanoid: The model.
-        library: The motions to evaluate on (unused: the normaliser comes from the checkpoint, not from the
-            evaluation motions, so the policy sees exactly the features it was trained on).
+        library: The motions to evaluate on: their terrains, when the policy reads terrain inputs (the normaliser
+            comes from the checkpoint, not from the evaluation motions, so the policy sees exactly the features it
+            was trained on).
         average: Which weights: the averaged ones (``policy.average_decay`` > 0), the live ones (False), or
             None: the averaged ones when the run kept an average (what its trainer evaluated), else the live ones.
 
@@ -44,9 +47,9 @@ def load_eval_policy(run_dir: Path, checkpoint: Path, humanoid: Humanoid, librar
         ValueError: If the checkpoint holds no SuperTrack policy (or no averaged one when ``average`` is True) or
             does not fit the config.
     """
-    del library
     cfg, net, _ = load_policy_network(run_dir, checkpoint, humanoid, average)
-    return Actor(humanoid, net, cfg.policy.alpha).deterministic
+    terrain = TerrainInputs(cfg.terrain, humanoid, library) if net.terrain_size else None
+    return Actor(humanoid, net, cfg.policy.alpha, terrain=terrain).deterministic
 
 
 def load_policy_network(run_dir: Path, checkpoint: Path, humanoid: Humanoid,
@@ -65,7 +68,8 @@ def load_policy_network(run_dir: Path, checkpoint: Path, humanoid: Humanoid,
     # Placeholder statistics of the right size; load_state_dict overwrites them with the trained ones.
     net = Policy(len(humanoid.joint_groups), cfg.policy.hidden, Normalizer(np.zeros(size), np.ones(size)),
                  cfg.policy.init_scale, root_offset=cfg.policy.root_offset,
-                 revolute=torch.tensor([g.kind == "revolute" for g in humanoid.joint_groups]))  # fmt: skip
+                 revolute=torch.tensor([g.kind == "revolute" for g in humanoid.joint_groups]),
+                 terrain_size=policy_terrain_size(cfg.terrain, humanoid.num_bodies))  # fmt: skip
     try:
         net.load_state_dict(weights)
     except RuntimeError as e:
@@ -116,9 +120,12 @@ def onnx_module(run_dir: Path, checkpoint: Path, humanoid: Humanoid) -> tuple[nn
         name, shape ("batch" first), meaning and, where it has one, the layout of its last axes.
 
     Raises:
-        ValueError: As :func:`load_eval_policy`.
+        ValueError: As :func:`load_eval_policy`, and for a policy that reads terrain inputs (not exported yet).
     """
     cfg, net, averaged = load_policy_network(run_dir, checkpoint, humanoid)
+    if net.terrain_size:
+        raise ValueError(f"{run_dir}: the policy reads terrain inputs (terrain.heightmap_extent / contact_frames), "
+                         "which export-policy does not export yet")  # fmt: skip
     n, joints = humanoid.num_bodies, [g.name for g in humanoid.joint_groups]
     body_layout = {"bodies": list(humanoid.body_names), "fields": {name: width for name, _, width in STATE_LAYOUT}}
     quat = "unit quaternion (w, x, y, z)"

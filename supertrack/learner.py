@@ -6,11 +6,8 @@ gym's characters act with the policy plus noise in the real simulator and a bloc
 processes that collect the next block with the weights of the running update's start); then W takes one step on
 8-frame windows (Algorithm 1) and the policy one step on 32-frame windows rolled out through W (Algorithm 2).
 
-Buffer frame i of a character holds S_i (``sim``), K_{i+1} (``kin_next``: the reference the step aims for, which
-is also the reference at the time of S_{i+1}), k_{i+1} (``kin_next_joint_rot``) and the applied targets T_i
-(``target_rot``). So a window's kin_next[i] is the target of the policy's i-th step and the state its prediction
-P_{i+1} is compared with, and target_rot[i] leads from sim[i] to sim[i + 1]. ``collected_at`` is the number of
-updates done when the weights that collected the frame were sent (the buffer age is measured from it).
+What a buffer frame holds: :mod:`supertrack.frames`. On terrain (the ``terrain`` config, :mod:`supertrack.terrain`)
+both rollouts sample the heightmap on each window's clip's terrain and W's contact logits join its loss.
 """
 
 from __future__ import annotations
@@ -18,10 +15,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
-import os
-import shutil
 import time
-import warnings
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -40,33 +34,20 @@ from common.train.training import NanGuard, gym_config
 from supertrack.actor import Actor, GymActor
 from supertrack.config import SuperTrackConfig
 from supertrack.diagnostics import open_loop_errors
-from supertrack.losses import policy_loss, world_model_loss
+from supertrack.frames import buffer_fields, gym_fields, upgrade_rows
+from supertrack.losses import contact_loss, policy_loss, world_model_loss
 from supertrack.models import Policy, WorldModel
 from supertrack.normalizer import (
     acceleration_normalizer,
     local_normalizer,
     target_normalizer,
 )
-from supertrack.rollout import Steps, make_steps, policy_rollout, world_model_rollout
-from supertrack.state import STATE_WIDTH, BodyState
+from supertrack.rollout import configured_steps, native_bf16, policy_rollout, world_model_prediction
+from supertrack.state import BodyState
+from supertrack.terrain import TerrainInputs
 
 # Floor of the acceleration normaliser's std (m/s^2, rad/s^2): reference clips hold some bodies nearly still.
 ACCEL_MIN_STD = 1.0
-
-
-def gym_fields(num_bodies: int, num_joints: int) -> dict[str, tuple[tuple[int, ...], str]]:
-    """The per-frame fields the gym's actor writes (:class:`supertrack.actor.GymActor`)."""
-    return {
-        "sim": ((num_bodies, STATE_WIDTH), "float32"),
-        "kin_next": ((num_bodies, STATE_WIDTH), "float32"),
-        "kin_next_joint_rot": ((num_joints, 4), "float32"),
-        "target_rot": ((num_joints, 4), "float32"),
-    }
-
-
-def buffer_fields(num_bodies: int, num_joints: int) -> dict[str, tuple[tuple[int, ...], str]]:
-    """The buffer's per-frame fields (see the module docstring)."""
-    return {**gym_fields(num_bodies, num_joints), "collected_at": ((), "int64")}
 
 
 def clip_weights(cfg: SuperTrackConfig, library: MotionLibrary) -> np.ndarray | None:
@@ -99,14 +80,20 @@ class SuperTrackLearner:
         min_std = cfg.buffer.normalizer_min_std
         local_norm = local_normalizer(library, min_std)
         revolute = torch.tensor([g.kind == "revolute" for g in humanoid.joint_groups])
+        t = cfg.terrain
+        self.terrain = TerrainInputs(t, humanoid, library).to(self.device) if t.enabled else None
+        heightmap_size, terrain_size = (0, 0) if self.terrain is None else \
+            (self.terrain.heightmap_size, self.terrain.policy_size)  # fmt: skip
         self.world_model = WorldModel(
             n_bodies, revolute, cfg.world_model.hidden, local_norm, target_normalizer(library, humanoid, min_std),
             acceleration_normalizer(library, ACCEL_MIN_STD), humanoid.physics.control_dt, cfg.world_model.init_scale,
+            heightmap_size, t.contact_weight > 0,
         ).to(self.device)  # fmt: skip
         self.policy_net = Policy(n_joints, cfg.policy.hidden, local_norm, cfg.policy.init_scale,
-                                 root_offset=cfg.policy.root_offset, revolute=revolute).to(self.device)  # fmt: skip
+                                 root_offset=cfg.policy.root_offset, revolute=revolute,
+                                 terrain_size=terrain_size).to(self.device)  # fmt: skip
         self.world.broadcast_modules(self.world_model, self.policy_net)
-        self.steps = _steps(cfg)
+        self.steps = configured_steps(cfg)
         # The W the policy learns through. With policy.concurrent it is a copy of W taken at the start of every
         # update (sharing the Local() normaliser, which never changes), so that the policy step can run in a second
         # thread while W's steps change W itself; otherwise W itself.
@@ -119,15 +106,19 @@ class SuperTrackLearner:
         self.world_optimizer = torch.optim.RAdam(self.world_model.parameters(), lr=cfg.world_model.lr)
         self.policy_optimizer = torch.optim.RAdam(self.policy_net.parameters(), lr=cfg.policy.lr)
         self._new_guards()
-        fields = buffer_fields(n_bodies, n_joints)
+        fields = buffer_fields(n_bodies, n_joints, t)
         self.train_buffer = CyclicBuffer(cfg.buffer.capacity, cfg.train_envs, fields)
         self.val_buffer = CyclicBuffer(cfg.buffer.val_capacity, cfg.buffer.val_envs, fields)
-        self.actor = Actor(humanoid, self.policy_net, cfg.policy.alpha)
+        self.actor = Actor(humanoid, self.policy_net, cfg.policy.alpha, terrain=self.terrain)
         # The evaluated policy: the live network, or its weight average when policy.average_decay > 0.
-        self.policy_average = WeightAverage(self.policy_net, cfg.policy.average_decay) if cfg.policy.average_decay \
-            else None
-        self.eval_actor = self.actor if self.policy_average is None else \
-            Actor(humanoid, self.policy_average.module, cfg.policy.alpha)
+        self.policy_average = (
+            WeightAverage(self.policy_net, cfg.policy.average_decay) if cfg.policy.average_decay else None
+        )
+        self.eval_actor = (
+            self.actor
+            if self.policy_average is None
+            else Actor(humanoid, self.policy_average.module, cfg.policy.alpha, terrain=self.terrain)
+        )
         self._charts: dict[str, float] = {}
         self._rates: dict[str, float] = {}
         self.fixed_clip_weights = clip_weights(cfg, library)
@@ -137,9 +128,10 @@ class SuperTrackLearner:
         # The gym's own actor: a CPU copy of the policy (in a worker process when collect.processes >= 1), in bf16
         # only where the CPU has it natively (a GPU run's CPU may emulate it, far slower than float32).
         factory = functools.partial(GymActor, policy=copy.deepcopy(self.policy_net).cpu(), alpha=cfg.policy.alpha,
-                                    sigma=cfg.policy.sigma, bf16=cfg.policy.bf16 and _native_bf16())  # fmt: skip
+                                    sigma=cfg.policy.sigma, bf16=cfg.policy.bf16 and native_bf16(),
+                                    terrain=TerrainInputs(t, humanoid, library) if t.enabled else None)  # fmt: skip
         spec = CollectorSpec(gym=gym_config(cfg), library=library, humanoid=humanoid, actor_factory=factory,
-                             fields=gym_fields(n_bodies, n_joints), noise_seed=cfg.train.seed,
+                             fields=gym_fields(n_bodies, n_joints, t), noise_seed=cfg.train.seed,
                              max_steps=max(c.steps_per_iteration, c.warmup_steps),
                              clip_weights=self._clip_weights(), torch_threads=cfg.train.torch_threads,
                              first_source=self.world.first_source(c.processes))  # fmt: skip
@@ -159,8 +151,9 @@ class SuperTrackLearner:
         next_steps = max(c.steps_per_iteration, c.warmup_steps - self.train_buffer.total_pushed - steps)
         block = self.collector.next_block(self.policy_net.state_dict(), self.updates, steps, next_steps,
                                           clip_weights=self._clip_weights())  # fmt: skip
-        self.motion_weights.record_block(self.world.concat_characters(
-            {k: block.frames[k] for k in ("clip", "terminated", "truncated")}))
+        self.motion_weights.record_block(
+            self.world.concat_characters({k: block.frames[k] for k in ("clip", "terminated", "truncated")})
+        )
         self._push(block)
         for k, v in block.charts.items():
             self._charts[k] = self._charts.get(k, 0.0) + v
@@ -180,7 +173,7 @@ class SuperTrackLearner:
         n_train = self.cfg.train_envs
         collected_at = np.full(self.gym_envs, block.version, dtype=np.int64)
         for t in range(block.steps):
-            frame = {**{k: v[t] for k, v in block.frames.items() if k != "clip"}, "collected_at": collected_at}
+            frame = {**{k: v[t] for k, v in block.frames.items()}, "collected_at": collected_at}
             self.train_buffer.push(**{k: v[:n_train] for k, v in frame.items()})
             self.val_buffer.push(**{k: v[n_train:] for k, v in frame.items()})
 
@@ -236,9 +229,10 @@ class SuperTrackLearner:
         d = self.cfg.diagnostics
         # Fresh generators with a fixed seed: the same windows every time, and the training RNG is not touched.
         out = open_loop_errors(self.world_model, self.val_buffer, d.horizons, d.batch, np.random.default_rng(d.seed),
-                               prefix="world_model/val_")  # fmt: skip
+                               prefix="world_model/val_", terrain=self.terrain)  # fmt: skip
         out.update(open_loop_errors(self.world_model, self.train_buffer, d.horizons, d.batch,
-                                    np.random.default_rng(d.seed), prefix="world_model/train_"))  # fmt: skip
+                                    np.random.default_rng(d.seed), prefix="world_model/train_",
+                                    terrain=self.terrain))  # fmt: skip
         out.update(self.motion_weights.clip_charts(self.library.names))
         return out
 
@@ -269,21 +263,18 @@ class SuperTrackLearner:
         self._new_guards()
 
     def _upgrade(self, state: dict[str, Any]) -> dict[str, Any]:
-        """A state written before :mod:`common.sim.collect` (a ``gym`` entry, frames without ``collected_at``) in
-        today's form, for the tools that read old runs (e.g. ``benchmarks/world_model_bodies.py``): the gym becomes the
-        in-process collector's, with this collector's noise generator (the noise came from the learner's then), and
-        the frames count as collected before the first update."""
+        """A state of an older run in today's form, for ``--resume`` and the tools that read old runs (e.g.
+        ``benchmarks/world_model_bodies.py``): buffer rows as :func:`supertrack.frames.upgrade_rows` gives them; a
+        state from before :mod:`common.sim.collect` (a ``gym`` entry) gets the in-process collector's, with this
+        collector's noise generator (the noise came from the learner's then)."""
+        upgraded = {**state, **{name: {**state[name], "rows": upgrade_rows(state[name]["rows"])}
+                                for name in ("train_buffer", "val_buffer")}}  # fmt: skip
         if "collector" in state or "gym" not in state:
-            return state
+            return upgraded
         if self.cfg.collect.processes != 0:
             raise ValueError("a checkpoint from before collect.processes existed loads with collect.processes=0 only")
         rng = self.collector.state_dict()["sources"][0]["rng"]
-        upgraded = {k: v for k, v in state.items() if k != "gym"}
-        upgraded["collector"] = {"sources": [{"gym": state["gym"], "rng": rng}], "pending": None}
-        for name in ("train_buffer", "val_buffer"):
-            rows = dict(state[name]["rows"])
-            rows.setdefault("collected_at", np.zeros(np.shape(rows["episode_id"]), dtype=np.int64))
-            upgraded[name] = {**state[name], "rows": rows}
+        upgraded["collector"] = {"sources": [{"gym": upgraded.pop("gym"), "rng": rng}], "pending": None}
         return upgraded
 
     def init_networks(self, learner_state: dict[str, Any]) -> None:
@@ -319,10 +310,17 @@ class SuperTrackLearner:
         return torch.as_tensor(x, device=self.device)
 
     def world_model_loss(self, windows: dict[str, np.ndarray]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """W's loss (Algorithm 1) on buffer windows, fields (B, L, ...), through the configured step functions."""
+        """W's loss (Algorithm 1) on buffer windows, fields (B, L, ...), through the configured step functions; with
+        ``terrain.contact_weight`` its contact term joins it."""
         sim = BodyState.unpack(self._tensor(windows["sim"]))
-        predicted = world_model_rollout(self.world_model, sim, self._tensor(windows["target_rot"]), self.steps)
-        return world_model_loss(predicted, sim.map(lambda x: x[:, 1:]), self.cfg.world_model.weights)
+        rollout = world_model_prediction(self.world_model, sim, self._tensor(windows["target_rot"]), self.steps,
+                                         self.terrain, self._window_clip(windows))  # fmt: skip
+        loss, metrics = world_model_loss(rollout.predicted, sim.map(lambda x: x[:, 1:]), self.cfg.world_model.weights)
+        if rollout.contacts is not None:
+            contact, contact_metrics = contact_loss(rollout.contacts, self._tensor(windows["sim_contacts"][:, 1:]))
+            loss = loss + self.cfg.terrain.contact_weight * contact
+            metrics = {**metrics, **contact_metrics, "losses/world_model": loss.detach()}
+        return loss, metrics
 
     def policy_loss(self, windows: dict[str, np.ndarray],
                     noise: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:  # fmt: skip
@@ -331,9 +329,14 @@ class SuperTrackLearner:
         sim0 = BodyState.unpack(self._tensor(windows["sim"][:, 0]))
         kin_next = BodyState.unpack(self._tensor(windows["kin_next"]))
         kin_rot = self._tensor(windows["kin_next_joint_rot"])
+        kin_contacts = self._tensor(windows["kin_contacts"]) if "kin_contacts" in windows else None
         rollout = policy_rollout(self.policy_net, self.policy_world, sim0, kin_next, kin_rot, noise, c.alpha,
-                                 self.steps)
+                                 self.steps, self.terrain, self._window_clip(windows), kin_contacts)  # fmt: skip
         return policy_loss(rollout.predicted, kin_next, rollout.offsets, c.weights, c.step_decay)
+
+    def _window_clip(self, windows: dict[str, np.ndarray]) -> torch.Tensor | None:
+        """Each window's clip (B,), whose terrain its rollout samples; None without terrain inputs."""
+        return None if self.terrain is None else self._tensor(windows["clip"][:, 0])
 
     def warm_up(self) -> None:
         """Runs both losses forward and backward once on stand-in windows of the training shapes, so that
@@ -425,29 +428,6 @@ class SuperTrackLearner:
             return {}
         charts = {**chart_metrics(c), **self.motion_weights.charts()}
         return {**charts, "charts/buffer_frames": float(len(self.train_buffer))}
-
-
-def _steps(cfg: SuperTrackConfig) -> Steps:
-    """The rollout step functions: under bf16 autocast and compiled where the config asks."""
-    w, p = cfg.world_model, cfg.policy
-    compile_world, compile_policy = w.compile, p.compile
-    if (compile_world or compile_policy) and torch.device(cfg.train.device).type == "cpu" and not any(
-        shutil.which(c) for c in (os.environ.get("CXX", "g++"), "g++", "clang++", "c++")
-    ):
-        warnings.warn("world_model.compile / policy.compile: no C++ compiler on PATH (torch.compile needs one on "
-                      "the CPU); running the rollouts uncompiled, about 2x slower", stacklevel=2)  # fmt: skip
-        compile_world = compile_policy = False
-    device_type = torch.device(cfg.train.device).type
-    if (w.bf16 or p.bf16) and device_type == "cpu" and not _native_bf16():
-        warnings.warn("world_model.bf16 / policy.bf16: this CPU has neither AVX-512 BF16 nor AMX, so bf16 matrix "
-                      "products are emulated (an AVX2-only EPYC here: a 256 x 256 matmul 58x slower than in float32)",
-                      stacklevel=2)  # fmt: skip
-    return make_steps(compile_world, compile_policy, w.bf16, p.bf16, device_type)
-
-
-def _native_bf16() -> bool:
-    """Whether this CPU multiplies bf16 matrices in hardware (torch's own feature checks)."""
-    return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
 
 
 def _batch_stats(packed_sim: np.ndarray) -> dict[str, float]:

@@ -47,6 +47,23 @@ def world_model_loss(
     return loss, metrics
 
 
+def contact_loss(logits: Tensor, contacts: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+    """W's contact prediction against the simulated contacts: binary cross-entropy per body and frame.
+
+    Args:
+        logits: W's contact logits of P_1 .. P_{L-1}. Shape: (B, T, N).
+        contacts: The simulated contacts of S_1 .. S_{L-1} (bool or 0/1). Shape: (B, T, N).
+
+    Returns:
+        The mean cross-entropy, and detached ``losses/world_model_contact`` (the same) and
+        ``losses/world_model_contact_error`` (the fraction of bodies and frames whose logit has the wrong sign).
+    """
+    target = contacts.to(logits.dtype)
+    loss = torch.nn.functional.binary_cross_entropy_with_logits(logits, target)
+    error = ((logits > 0) != (target > 0.5)).to(logits.dtype).mean()
+    return loss, {"losses/world_model_contact": loss.detach(), "losses/world_model_contact_error": error.detach()}
+
+
 def step_weights(steps: int, decay: float, like: Tensor) -> Tensor:
     """Per-step loss weights decay^i (i = 0 .. steps - 1) scaled to mean 1, so that decay 1 is the plain mean.
 

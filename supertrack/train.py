@@ -23,7 +23,7 @@ from common.run.directory import read_checkpoint
 from common.sim.collect import CollectorError
 from common.train.command import TrainingCommand, train_main
 from common.train.distributed import World
-from supertrack.config import SuperTrackConfig
+from supertrack.config import SuperTrackConfig, TerrainConfig
 from supertrack.learner import SuperTrackLearner, clip_weights
 
 DESCRIPTION = """\
@@ -34,8 +34,9 @@ evaluator (eval/...); the world model's accuracy is logged as world_model/...
 Config sections (any key can be overridden with --set section.key=value): train (budget, seed, device, logging,
 eval), gym (characters, physics, termination), world_model and policy (network sizes, batch, window, learning
 rate, loss weights; policy also sigma and alpha_deg), buffer (capacity, held-back characters), collect (gym steps
-per iteration, warm-up, worker processes, clip_weights), diagnostics (world-model error horizons). Bundled configs:
-default (a 2-core CPU), paper (the paper's sizes, for a GPU), debug (tests)."""
+per iteration, warm-up, worker processes, clip_weights), diagnostics (world-model error horizons), terrain (the
+heightmap and contact labels the networks read on terrain, W's contact output; off). Bundled configs: default (a
+2-core CPU), paper (the paper's sizes, for a GPU), debug (tests)."""
 
 EXAMPLES = (
     "train-supertrack --motions walk --out runs/st-walk",
@@ -45,7 +46,7 @@ EXAMPLES = (
     "train-supertrack --init-from runs/st-walk --motions run --out runs/st-run   # fine-tune walk to run",
     "torchrun --standalone --nproc_per_node=2 -m supertrack.train --set gym.threads=1 --out runs/st-2ranks"
     "   # 2 ranks",
-)
+)  # fmt: skip
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -76,10 +77,14 @@ def _check_init_fits(source: Path, state: dict[str, Any], cfg: SuperTrackConfig,
     meta = state["meta"]
     if list(meta.get("bodies", [])) != list(humanoid.body_names):
         raise ValueError(f"--init-from {source}: another character (bodies {meta.get('bodies')})")
-    here = to_dict(cfg)
-    for section, key in (("world_model", "hidden"), ("policy", "hidden"), ("policy", "root_offset")):
-        theirs = meta.get("config", {}).get(section, {}).get(key)
-        if theirs != here[section][key]:
+    here, before = to_dict(cfg), {"terrain": to_dict(TerrainConfig())}  # runs from before a section: its defaults
+    for section, key in (("world_model", "hidden"), ("policy", "hidden"), ("policy", "root_offset"),
+                         *(("terrain", k) for k in ("heightmap_extent", "heightmap_spacing", "contact_weight",
+                                                    "contact_frames"))):  # fmt: skip
+        theirs = meta.get("config", {}).get(section, before.get(section, {})).get(key)
+        # W's contact output exists or not: its weight's value does not size anything.
+        same = bool(theirs) == bool(here[section][key]) if key == "contact_weight" else theirs == here[section][key]
+        if not same:
             raise ValueError(f"--init-from {source}: {section}.{key} is {theirs} there and {here[section][key]} here; "
                              "the networks must have the same sizes")  # fmt: skip
 

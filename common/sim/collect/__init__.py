@@ -4,7 +4,8 @@ The collector knows no learner. It gets a picklable factory that builds a :class
 copy plus exploration noise, turning a gym state into PD targets and the learner's per-frame fields), the layout of
 those fields and the policy's weights, and it hands back whole blocks of frames, (T, N, *shape) per field, with the
 bookkeeping fields of :mod:`common.sim.buffer` (``episode_id``, ``terminated``, ``truncated``) and the frame's ``clip``
-filled in.
+(:data:`EPISODE_FIELDS`: the clip of the frame's episode, which a learner's buffer may keep so that a window's clip,
+and so its terrain, is known) filled in.
 
 - ``processes = 0`` (:class:`LocalCollector`): the gym steps in the learner's process when a block is asked for,
   with the weights given then: the learner's classic collect-then-update loop.
@@ -38,6 +39,7 @@ continues the count (``CollectorSpec.first_source`` = r K, :mod:`common.train.di
 from common.sim.collect.charts import chart_metrics
 from common.sim.collect.process import Collector, ProcessCollector, make_collector
 from common.sim.collect.source import (
+    EPISODE_FIELDS,
     ActorFactory,
     Block,
     CollectorError,
@@ -49,5 +51,19 @@ from common.sim.collect.source import (
     LocalCollector,
 )
 
-__all__ = ["ActorFactory", "Block", "Collector", "CollectorError", "CollectorSpec", "FieldLayout", "FrameActor",
-           "FrameSource", "Inputs", "LocalCollector", "ProcessCollector", "chart_metrics", "make_collector"]
+__all__ = [
+    "EPISODE_FIELDS",
+    "ActorFactory",
+    "Block",
+    "Collector",
+    "CollectorError",
+    "CollectorSpec",
+    "FieldLayout",
+    "FrameActor",
+    "FrameSource",
+    "Inputs",
+    "LocalCollector",
+    "ProcessCollector",
+    "chart_metrics",
+    "make_collector",
+]
