@@ -231,14 +231,14 @@ def _pictures(report: Report, policies: list[Policy], library: MotionLibrary, hu
             if c in chosen:
                 png = out / f"filmstrip_{stem}_{name}.png"
                 try:
-                    render.filmstrip(sim, ref, humanoid, png, backend)
+                    render.filmstrip(sim, ref, humanoid, png, backend, terrain=library.clips[c].terrain)
                     strips.setdefault(run.label, []).append((name, png))
                 except (RuntimeError, OSError) as e:
                     report.notes.append(f"Filmstrip of {run.label} on {name} failed: {e}")
             if c < n_video:
                 mp4 = out / f"video_{stem}_{name}.mp4"
                 try:
-                    render.video(sim, ref, humanoid, mp4, backend, fps)
+                    render.video(sim, ref, humanoid, mp4, backend, fps, terrain=library.clips[c].terrain)
                     videos.setdefault(run.label, []).append((name, mp4))
                 except (RuntimeError, OSError) as e:
                     report.notes.append(f"Video of {run.label} on {name} failed: {e}")

@@ -3,7 +3,7 @@
 The policy is rebuilt from a run's checkpoint by its learner's ``export.py`` (as the comparison report does) and played
 from t = 0 like the evaluator, until the episode fails or ``--frames`` pass. Where a display exists the recorded
 episode loops in MuJoCo's interactive viewer; otherwise (or with ``--out``) it is written as an MP4 by the report's
-offscreen renderer.
+offscreen renderer. A clip on a terrain is drawn on it.
 
 Examples::
 
@@ -39,7 +39,9 @@ from common.cli import (
 from common.config import ConfigError
 from common.motion.dataset import load_motions
 from common.motion.motion import MotionFormatError
+from common.motion.terrain import Terrain
 from common.run.checkpoint import CheckpointError
+from common.sim.terrain import terrain_model
 from common.tools import render
 from common.tools.motions import clip_option
 from report.runs import ReportError, export_module, load_run
@@ -50,7 +52,8 @@ def has_display() -> bool:
     return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def view(sim_qpos: np.ndarray, ref_qpos: np.ndarray, humanoid: Humanoid, fps: float) -> None:
+def view(sim_qpos: np.ndarray, ref_qpos: np.ndarray, humanoid: Humanoid, fps: float,
+         terrain: Terrain | None = None) -> None:  # fmt: skip
     """Loops the recorded episode in MuJoCo's viewer until its window is closed; the reference as a ghost.
 
     Args:
@@ -58,11 +61,13 @@ def view(sim_qpos: np.ndarray, ref_qpos: np.ndarray, humanoid: Humanoid, fps: fl
         ref_qpos: The reference per frame. Shape: (T, nq).
         humanoid: The model.
         fps: Playback rate.
+        terrain: The clip's terrain, drawn with the gym's terrain model (:func:`common.sim.terrain.terrain_model`);
+            None: the flat floor.
     """
     import mujoco
     import mujoco.viewer
 
-    model = humanoid.model
+    model = humanoid.model if terrain is None else terrain_model(humanoid, terrain)
     d_sim, d_ref = mujoco.MjData(model), mujoco.MjData(model)
     with mujoco.viewer.launch_passive(model, d_sim) as viewer:
         t = 0
@@ -123,14 +128,16 @@ def _main(argv: list[str] | None) -> int:
         fail(one_line(e))
     sim, ref = render.record_rollout(policy, library, humanoid, clip, args.frames, run.eval_config())
     fps = humanoid.physics.control_hz
+    terrain = library.clips[clip].terrain  # drawn as the gym simulated it
     note = f"{run.label} on {library.names[clip]}: {len(sim)} frames before the episode ended or --frames"
     if out is None:
         print(note + "; close the viewer window to quit")
-        view(sim, ref, humanoid, fps)
+        view(sim, ref, humanoid, fps, terrain)
         return 0
     assert backend is not None
     try:
-        render.video(sim, ref, humanoid, out, backend, fps=fps, width=args.size[0], height=args.size[1])
+        render.video(sim, ref, humanoid, out, backend, fps=fps, width=args.size[0], height=args.size[1],
+                     terrain=terrain)  # fmt: skip
     except OSError as e:
         fail(f"{out}: cannot write it: {e.strerror or one_line(e)}", EXIT_RUN_FAILED)
     print(f"{note}; wrote {out}")

@@ -198,6 +198,16 @@ def read_sidecar(clip_path: str | Path) -> Terrain | None:
     path = sidecar_path(clip_path)
     if not path.exists() and not path.is_symlink():
         return None
+    return read_terrain_file(path)
+
+
+def read_terrain_file(path: str | Path) -> Terrain:
+    """A terrain file (format ``mimictrack.terrain``, as :func:`write_sidecar` writes one).
+
+    Raises:
+        MotionFormatError: naming the file and the problem on one line.
+    """
+    path = Path(path)
     check_regular_file(path, MotionFormatError, max_bytes=None)
     where = str(path)
     try:

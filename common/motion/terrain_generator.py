@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from common.motion.limits import MAX_TERRAIN_POINTS
 from common.motion.terrain import Terrain, check_terrain
 
 STEP_HEIGHT_RANGE = (0.05, 0.15)  # m
@@ -34,6 +35,9 @@ def _grid(length: float, width: float, before: float, after: float, cell: float)
                          f"{cell}, {before}, {after}")  # fmt: skip
     cols = int(np.ceil((before + length + after) / cell - 1e-9)) + 1
     rows = int(np.ceil(width / cell - 1e-9)) + 1
+    if rows * cols > MAX_TERRAIN_POINTS:  # before anything that size is allocated
+        raise ValueError(f"a terrain of {rows:,} x {cols:,} points, more than {MAX_TERRAIN_POINTS:,}: a shorter or "
+                         "narrower strip, or larger cells")  # fmt: skip
     return -before + cell * np.arange(cols), -0.5 * (rows - 1) * cell + cell * np.arange(rows)
 
 
@@ -150,3 +154,65 @@ def boxes(count: int = 4, height_range: tuple[float, float] = BOX_HEIGHT_RANGE,
         inside = ((xs >= x0) & (xs <= x0 + sx))[None, :] & ((ys >= y0) & (ys <= y0 + sy))[:, None]
         heights = np.where(inside, np.maximum(heights, top), heights)
     return check_terrain(heights, cell, np.array([xs[0], ys[0]]), "boxes")
+
+
+KINDS = {"stairs": stairs, "slope": slope, "rough": rough, "boxes": boxes}
+MAX_COUNT = 1000  # the most steps or boxes a command may ask for
+"""The generator's kinds by name (``mimic-motions fit-terrain --terrain KIND``)."""
+
+
+def parameters(kind: str) -> dict[str, object]:
+    """A kind's parameters (but ``seed``) and their defaults (None: drawn with the seed)."""
+    import inspect
+
+    return {name: p.default for name, p in inspect.signature(KINDS[kind]).parameters.items() if name != "seed"}
+
+
+def generate(kind: str, seed: int = 0, settings: list[str] | tuple[str, ...] = ()) -> Terrain:
+    """A terrain of ``kind`` from ``NAME=VALUE`` settings of its parameters, as text (the command line's form).
+
+    A value is read as its parameter's default is typed: a number (float, or int for ``steps`` and ``count``), a word
+    (``direction=down``), or numbers separated by commas for a range (``height_range=0.05,0.1``); a parameter whose
+    default is None (drawn with the seed) takes a number.
+
+    Raises:
+        ValueError: an unknown kind or parameter, a value that does not parse, or one the generator refuses (out of
+            its documented range), on one line.
+    """
+    if kind not in KINDS:
+        raise ValueError(f"unknown terrain kind {kind!r}; the generator's kinds are {', '.join(KINDS)}")
+    defaults = parameters(kind)
+    kwargs: dict[str, object] = {}
+    for text in settings:
+        name, eq, value = text.partition("=")
+        name = name.strip()
+        if not eq or name not in defaults:
+            raise ValueError(f"{kind}: {text!r} is not NAME=VALUE for one of its parameters "
+                             f"({', '.join(defaults)})")  # fmt: skip
+        if name in kwargs:
+            raise ValueError(f"{kind}: parameter {name} given twice")
+        default = defaults[name]
+        try:
+            if isinstance(default, str):
+                parsed: object = value.strip()
+            elif isinstance(default, tuple):
+                parsed = tuple(float(v) for v in value.split(","))
+                if len(parsed) != len(default):
+                    raise ValueError(f"{len(default)} numbers separated by commas")
+            elif isinstance(default, int) and not isinstance(default, bool):
+                parsed = int(value)
+            else:
+                parsed = float(value)
+        except ValueError as e:
+            what = str(e) if "commas" in str(e) else "an integer" if isinstance(default, int) else "a number"
+            raise ValueError(f"{kind}: {name}={value!r} is not {what}") from None
+        numbers = parsed if isinstance(parsed, tuple) else (parsed,) if isinstance(parsed, float) else ()
+        if not np.isfinite(numbers).all():
+            raise ValueError(f"{kind}: {name}={value!r} is not finite")
+        if isinstance(parsed, int) and not 0 <= parsed <= MAX_COUNT:  # steps, count: a loop runs over them
+            raise ValueError(f"{kind}: {name}={parsed} is outside 0 to {MAX_COUNT:,}")
+        kwargs[name] = parsed
+    try:
+        return KINDS[kind](seed=seed, **kwargs)
+    except ValueError as e:
+        raise ValueError(f"{kind}: {e}") from None

@@ -1,4 +1,4 @@
-"""``mimic-motions``: inspect, import, render and convert motion clips.
+r"""``mimic-motions``: inspect, import, render and convert motion clips, and fit them to a terrain.
 
 Examples::
 
@@ -7,6 +7,8 @@ Examples::
     mimic-motions convert all --out motions.h5
     mimic-motions import take.bvh --map cmu --fix-ground --out take.txt
     mimic-motions render take.txt --out take.mp4
+    mimic-motions fit-terrain walk --cycles 2 --terrain stairs --param step_depth=0.62 --terrain-at 0.5 0 \
+        --out walk_up.txt                 # two walk cycles up stairs, + walk_up.terrain.h5
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+
+import numpy as np
 
 from common.bundled_configs import plain_help
 from common.character.humanoid import BodyGeometry, Humanoid, PhysicsConfig
@@ -28,14 +32,17 @@ from common.cli import (
     exit_status,
     fail,
     non_negative_float,
+    non_negative_int,
     one_line,
     pixels,
     positive_float,
+    positive_int,
 )
 from common.config import ConfigError
 from common.motion.dataset import load_motions, resolve_clips, save_dataset
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
+from common.motion.terrain import SIDECAR_SUFFIX, Terrain, check_terrain, read_terrain_file, sidecar_path
 
 
 def summary(library: MotionLibrary, sources_fps: dict[str, float], humanoid: Humanoid) -> str:
@@ -118,14 +125,44 @@ def _main(argv: list[str] | None) -> int:
     i.add_argument("--fix-ground", action="store_true", help="lift or lower the clip: feet on the floor in stance")
     i.add_argument("--loop", choices=("wrap", "none"), help="loop mode (default: the source's; BVH: none)")
     i.add_argument("--name", help="clip name (default: the file stem)")
-    r = sub.add_parser("render", help="kinematic playback of a clip as an MP4 video (MuJoCo offscreen)")
+    r = sub.add_parser("render", help="kinematic playback of a clip as an MP4 video (MuJoCo offscreen), on its "
+                                       "terrain if it has one")  # fmt: skip
     r.add_argument("motions", nargs="+", help="as for summary")
     r.add_argument("--out", required=True, help="output .mp4 file")
     r.add_argument("--clip", help="which clip of the motions (default: the first)")
     r.add_argument("--seconds", type=positive_float,
                    help=f"length (default: the clip; wrap clips one cycle); at most {MAX_FRAMES} frames")  # fmt: skip
     r.add_argument("--size", type=pixels, nargs=2, default=(480, 360), metavar=("W", "H"), help="pixels (480 360)")
-    for p in (s, c, i, r):
+    f = sub.add_parser(
+        "fit-terrain", help="fit a clip to a terrain: stance feet on it, the root raised per frame (docs/motions.md)",
+        description="Fits a clip recorded on flat ground to a terrain: the root raised or lowered per frame by the "
+        "terrain's height under the stance foot (handed over between the feet in double support, smoothed at "
+        "most 1 m/s faster or slower vertically, never below the stance ground), then the ground fix of "
+        "`import --fix-ground` measured against the terrain. On a terrain flat at height 0 it is exactly "
+        "--fix-ground. Writes the clip with its terrain (.txt: a .terrain.h5 sidecar beside it; .h5: in the "
+        "dataset) and prints the offset's range, the stance frames found and the lowest foot before and after.",
+    )  # fmt: skip
+    f.add_argument("source", help="one clip, as for summary (a bundled name, a .txt, or a clip pack with --clip)")
+    f.add_argument("--terrain", required=True,
+                   help="a generator kind (stairs, slope, rough, boxes: common/motion/terrain_generator.py), a "
+                        ".terrain.h5 file, or motions (as for summary) whose clips carry one terrain")  # fmt: skip
+    f.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="a generator parameter, repeatable: stairs direction=down, steps, step_height, step_depth; "
+                        "slope angle_deg, length; rough amplitude, bump_spacing, length; boxes count, "
+                        "height_range=LO,HI, size_range=LO,HI, length; all width, before, after, cell (metres, "
+                        "degrees); unset ranges are drawn with --seed")  # fmt: skip
+    f.add_argument("--seed", type=non_negative_int, default=0, help="seeds what the generator draws (default 0)")
+    f.add_argument("--terrain-at", type=float, nargs=2, default=None, metavar=("X", "Y"),
+                   help="move the terrain by X, Y metres (a generated strip's feature starts at x = 0, centred on "
+                        "y = 0)")  # fmt: skip
+    f.add_argument("--clip", help="which clip of the source (default: its only one)")
+    f.add_argument("--cycles", type=positive_int,
+                   help="play a wrap clip for this many cycles first, as one one-shot clip (a walk long enough for "
+                        "a flight of stairs)")  # fmt: skip
+    f.add_argument("--name", help="clip name (default: the source's)")
+    f.add_argument("--out", required=True, help="output: DeepMimic .txt (+ .terrain.h5 sidecar) or motion dataset "
+                                                ".h5 (written atomically)")  # fmt: skip
+    for p in (s, c, i, r, f):
         p.add_argument("--control-hz", type=_control_hz, default=60.0,
                        help=f"control and reference rate in Hz (default 60, at most {MAX_CONTROL_HZ:g})")  # fmt: skip
     args = parser.parse_args(argv)
@@ -158,6 +195,8 @@ def _main(argv: list[str] | None) -> int:
         print("\n".join(notes + [f"wrote {args.out}: {clip.num_keyframes} keyframes, {clip.duration:.3f} s"]))
     elif args.command == "render":
         return _render(args, humanoid)
+    elif args.command == "fit-terrain":
+        return _fit_terrain(args, humanoid)
     else:
         started = time.perf_counter()
         library = load_motions(args.motions, humanoid)
@@ -195,10 +234,91 @@ def _render(args: argparse.Namespace, humanoid: Humanoid) -> int:
     backend, why = render.find_backend()
     if backend is None:
         fail(why, EXIT_NO_RENDERER)
+    terrain = library.clips[clip].terrain
     _write(args.out, lambda: render.video(qpos, None, humanoid, Path(args.out), backend,
                                           fps=humanoid.physics.control_hz, width=args.size[0],
-                                          height=args.size[1]))  # fmt: skip
-    print(f"wrote {args.out}: {library.names[clip]}, {len(qpos)} frames at {humanoid.physics.control_hz:g} fps ({why})")
+                                          height=args.size[1], terrain=terrain))  # fmt: skip
+    on = "" if terrain is None else f" on its terrain ({describe_terrain(terrain)})"
+    print(f"wrote {args.out}: {library.names[clip]}{on}, {len(qpos)} frames at {humanoid.physics.control_hz:g} fps "
+          f"({why})")  # fmt: skip
+    return 0
+
+
+def describe_terrain(terrain: Terrain) -> str:
+    """``"120 x 41 nodes of 5 cm, x -1.00 to 5.00 m, y -1.00 to 1.00 m, heights 0.00 to 0.60 m"``."""
+    lo, hi = terrain.origin, terrain.origin + terrain.size
+    rows, cols = terrain.shape
+    return (f"{cols} x {rows} nodes of {terrain.cell_size * 100:g} cm, x {lo[0]:.2f} to {hi[0]:.2f} m, y {lo[1]:.2f} "
+            f"to {hi[1]:.2f} m, heights {terrain.heights.min():.2f} to {terrain.heights.max():.2f} m")  # fmt: skip
+
+
+def _terrain_option(args: argparse.Namespace, humanoid: Humanoid) -> tuple[Terrain, str]:
+    """The terrain ``--terrain`` names (moved by ``--terrain-at``), and where it came from."""
+    from common.motion import terrain_generator
+
+    spec = args.terrain
+    if spec in terrain_generator.KINDS:
+        try:
+            terrain = terrain_generator.generate(spec, args.seed, args.param)
+        except ValueError as e:
+            fail(f"--terrain {one_line(e)}")  # "--terrain stairs: step_height 0.5 is outside 0.05 to 0.15"
+        where = " ".join([f"{spec} seed {args.seed}", *args.param])
+    else:
+        if args.param:
+            fail(f"--param {args.param[0]}: parameters are for the generator's kinds "
+                 f"({', '.join(terrain_generator.KINDS)}), not for a file ({spec})")  # fmt: skip
+        if spec.endswith(SIDECAR_SUFFIX):
+            terrain = read_terrain_file(spec)
+        else:
+            clips = load_motions([spec], humanoid).clips
+            found = {t.key(): t for t in (clip.terrain for clip in clips) if t is not None}
+            if len(found) != 1:
+                fail(f"--terrain {spec}: its clips carry {len(found)} terrains; it must hold one (or give a generator "
+                     f"kind: {', '.join(terrain_generator.KINDS)}, or a {SIDECAR_SUFFIX} file)")  # fmt: skip
+            terrain = next(iter(found.values()))
+        where = spec
+    if args.terrain_at is not None:
+        moved = terrain.origin + np.asarray(args.terrain_at, dtype=np.float64)
+        terrain = check_terrain(terrain.heights, terrain.cell_size, moved, f"--terrain-at {args.terrain_at[0]:g} "
+                                f"{args.terrain_at[1]:g}")  # fmt: skip
+        where += f", moved by ({args.terrain_at[0]:g}, {args.terrain_at[1]:g}) m"
+    return terrain, where
+
+
+def _fit_terrain(args: argparse.Namespace, humanoid: Humanoid) -> int:
+    """``fit-terrain``: one clip fitted to a terrain and written with it (motion_import/terrain_fit.py)."""
+    from dataclasses import replace
+
+    from common.motion.motion_import import cleanup
+    from common.motion.motion_import.pipeline import check_playable, write_clip
+    from common.motion.motion_import.terrain_fit import fit_terrain
+
+    if Path(args.out).suffix not in (".txt", ".h5"):
+        fail(f"--out {args.out}: must be a DeepMimic .txt or a motion dataset .h5")
+    terrain, where = _terrain_option(args, humanoid)
+    clips = resolve_clips([args.source])
+    if args.clip is None and len(clips) != 1:
+        fail(f"{args.source}: holds {len(clips)} clips; pick one with --clip ({', '.join(c.name for c in clips)})")
+    names = [c.name for c in clips]
+    if args.clip is not None and args.clip not in names:
+        fail(f"--clip {args.clip}: no such clip in {args.source} ({', '.join(names)})")
+    clip = clips[names.index(args.clip) if args.clip is not None else 0]
+    clip = replace(clip, name=args.name or clip.name)
+    notes = [f"read {clip.source}: {clip.num_keyframes} keyframes, {clip.duration:.3f} s"]
+    try:
+        if args.cycles is not None:
+            clip = cleanup.unroll(clip, humanoid, args.cycles)
+            notes.append(f"unrolled {args.cycles} cycles: {clip.num_keyframes} keyframes, {clip.duration:.3f} s, "
+                         "one-shot")  # fmt: skip
+        notes.append(f"terrain {where}: {describe_terrain(terrain)}")
+        fitted, fit = fit_terrain(clip, humanoid, terrain)
+    except ValueError as e:  # a clip that leaves the terrain, --cycles on a one-shot clip
+        fail(one_line(e))
+    check_playable(fitted, humanoid)
+    _write(args.out, lambda: write_clip(args.out, fitted, humanoid))
+    sidecar = f" and {sidecar_path(args.out)}" if Path(args.out).suffix == ".txt" else " (terrain inside)"
+    print("\n".join(notes + fit.report() + [f"wrote {args.out}{sidecar}: {fitted.num_keyframes} keyframes, "
+                                            f"{fitted.duration:.3f} s, loop {'wrap' if fitted.loop else 'none'}"]))
     return 0
 
 

@@ -1,6 +1,11 @@
 """Filmstrips and MP4 videos of the simulated character (opaque) over its reference (translucent ghost), MuJoCo
 offscreen; without a reference, plain kinematic playback (``mimic-motions render``).
 
+A clip on a terrain is drawn on it: the child builds the model with the gym's terrain model builder
+(:func:`common.sim.terrain.terrain_model`: the heightfield geom, the floor plane moved below it), and the camera looks
+at the terrain's height under the character (smoothed over :data:`CAMERA_SMOOTHING` frames) plus the flat view's
+0.9 m. A flat clip is drawn from the plain model with the camera as before.
+
 The rollout runs in the report's process; drawing runs in a child process (``python -m common.tools.render``) with
 ``MUJOCO_GL`` set to the first backend that works (``egl``, then ``osmesa``), because MuJoCo picks its GL backend once,
 at import, and a broken GL driver may abort the process: the report must survive a machine without a renderer.
@@ -21,12 +26,15 @@ import numpy as np
 from common.character.humanoid import Humanoid
 from common.evaluation.evaluate import EvalConfig, Policy
 from common.motion.library import MotionLibrary
+from common.motion.terrain import Terrain
 from common.sim.gym import GymConfig, TrackingGym
 
 BACKENDS = ("egl", "osmesa")
 _PROBE = "import mujoco; m = mujoco.MjModel.from_xml_string('<mujoco/>'); mujoco.Renderer(m, 8, 8).render()"
 _EXIT_WRITE_FAILED = 4  # the drawing child's status when it could not write its output (e.g. ENOSPC)
 GHOST_RGBA = (1.0, 0.6, 0.2, 0.35)  # the reference: orange and translucent, so the simulated body stays readable
+LOOK_HEIGHT = 0.9  # m: the camera looks at this height above the ground under the character
+CAMERA_SMOOTHING = 15  # frames: half-width of the window smoothing the ground height the camera follows on a terrain
 
 
 def find_backend(timeout_s: float = 60.0) -> tuple[str | None, str]:
@@ -91,18 +99,22 @@ def record_rollout(policy: Policy, library: MotionLibrary, humanoid: Humanoid, c
 
 
 def filmstrip(sim_qpos: np.ndarray, ref_qpos: np.ndarray, humanoid: Humanoid, out: Path, backend: str,
-              panels: int = 6, size: int = 240, timeout_s: float = 300.0) -> None:  # fmt: skip
-    """Renders ``panels`` evenly spaced frames side by side into ``out`` (PNG) in a child process.
+              panels: int = 6, size: int = 240, timeout_s: float = 300.0,
+              terrain: Terrain | None = None) -> None:  # fmt: skip
+    """Renders ``panels`` evenly spaced frames side by side into ``out`` (PNG) in a child process, on ``terrain``
+    (None: the flat floor).
 
     Raises:
         RuntimeError: If the child process fails.
     """
+    followed = ref_qpos if len(ref_qpos) else sim_qpos
     _run_child(Path(out), backend, timeout_s, sim=sim_qpos, ref=ref_qpos, xml=str(humanoid.xml_path), panels=panels,
-               width=size, height=size, fps=0.0)  # fmt: skip
+               width=size, height=size, fps=0.0, **_terrain_data(terrain, followed))  # fmt: skip
 
 
 def video(sim_qpos: np.ndarray, ref_qpos: np.ndarray | None, humanoid: Humanoid, out: Path, backend: str,
-          fps: float, width: int = 480, height: int = 360, timeout_s: float = 900.0) -> None:  # fmt: skip
+          fps: float, width: int = 480, height: int = 360, timeout_s: float = 900.0,
+          terrain: Terrain | None = None) -> None:  # fmt: skip
     """Renders every frame into an MP4 video ``out`` (H.264) in a child process.
 
     Args:
@@ -113,13 +125,30 @@ def video(sim_qpos: np.ndarray, ref_qpos: np.ndarray | None, humanoid: Humanoid,
         backend: MuJoCo GL backend (see :func:`find_backend`).
         fps: Frames per second of the video.
         width, height: Frame size in pixels (rounded up to even numbers for the encoder).
+        terrain: The ground drawn under the character; None: the flat floor.
 
     Raises:
         RuntimeError: If the child process fails.
     """
     ref = np.zeros((0, sim_qpos.shape[1])) if ref_qpos is None else ref_qpos
     _run_child(Path(out), backend, timeout_s, sim=sim_qpos, ref=ref, xml=str(humanoid.xml_path), panels=0,
-               width=width + width % 2, height=height + height % 2, fps=fps)  # fmt: skip
+               width=width + width % 2, height=height + height % 2, fps=fps,
+               **_terrain_data(terrain, ref if len(ref) else sim_qpos))  # fmt: skip
+
+
+def _terrain_data(terrain: Terrain | None, followed: np.ndarray) -> dict[str, np.ndarray]:
+    """What the drawing child needs of a terrain: its grid and, per frame, the ground height the camera follows
+    under the followed character's root (a Hann-weighted mean over +-:data:`CAMERA_SMOOTHING` frames, so that the
+    view glides up a flight of stairs). A flat floor: empty arrays and a height of 0."""
+    if terrain is None:
+        return {"terrain_heights": np.zeros((0, 0)), "terrain_cell": np.zeros(0), "terrain_origin": np.zeros(0),
+                "ground": np.zeros(len(followed))}  # fmt: skip
+    ground = terrain.height_at(followed[:, 0], followed[:, 1])
+    half = CAMERA_SMOOTHING
+    weights = np.sin(np.pi * np.arange(1, 2 * half + 2) / (2 * half + 2)) ** 2
+    ground = np.convolve(np.pad(ground, half, mode="edge"), weights / weights.sum(), mode="valid")
+    return {"terrain_heights": terrain.heights, "terrain_cell": np.array([terrain.cell_size]),
+            "terrain_origin": terrain.origin, "ground": ground}  # fmt: skip
 
 
 def write_video(frames: Iterable[np.ndarray], out: Path, fps: float) -> int:
@@ -194,8 +223,9 @@ def _run_child(out: Path, backend: str, timeout_s: float, **data: object) -> Non
 
 
 def _images(model: object, sim_q: np.ndarray, ref_q: np.ndarray, frames: Iterable[int], width: int,
-            height: int) -> Iterator[np.ndarray]:  # fmt: skip
-    """Draws the given frames: the simulated character opaque, the reference (if any rows) as a ghost."""
+            height: int, ground: np.ndarray) -> Iterator[np.ndarray]:  # fmt: skip
+    """Draws the given frames: the simulated character opaque, the reference (if any rows) as a ghost; the camera
+    looks at :data:`LOOK_HEIGHT` above ``ground`` (per frame, 0 on the flat floor)."""
     import mujoco
 
     # The offscreen buffer must hold the image; the bundled model may declare a smaller one.
@@ -216,7 +246,7 @@ def _images(model: object, sim_q: np.ndarray, ref_q: np.ndarray, frames: Iterabl
                 d_ref.qpos[:] = ref_q[t]
                 mujoco.mj_kinematics(model, d_ref)
                 follow = d_ref  # follow the reference: drift shows as offset
-            camera.lookat[:] = [follow.qpos[0], follow.qpos[1], 0.9]
+            camera.lookat[:] = [follow.qpos[0], follow.qpos[1], LOOK_HEIGHT + ground[t]]
             renderer.update_scene(d_sim, camera, option)
             if len(ref_q):
                 first = renderer.scene.ngeom
@@ -235,9 +265,16 @@ def _draw(data_path: Path, out: Path) -> None:
     data = np.load(data_path)
     sim_q, ref_q = data["sim"], data["ref"]
     width, height, panels, fps = int(data["width"]), int(data["height"]), int(data["panels"]), float(data["fps"])
-    model = mujoco.MjModel.from_xml_path(str(data["xml"]))
+    ground = data["ground"]
+    if data["terrain_heights"].size:
+        from common.sim.terrain import terrain_model
+
+        terrain = Terrain(data["terrain_heights"], float(data["terrain_cell"][0]), data["terrain_origin"])
+        model = terrain_model(Humanoid(xml_path=str(data["xml"])), terrain)
+    else:
+        model = mujoco.MjModel.from_xml_path(str(data["xml"]))
     if fps > 0:
-        write_video(_images(model, sim_q, ref_q, range(len(sim_q)), width, height), out, fps)
+        write_video(_images(model, sim_q, ref_q, range(len(sim_q)), width, height, ground), out, fps)
         return
     import matplotlib
 
@@ -245,7 +282,7 @@ def _draw(data_path: Path, out: Path) -> None:
     import matplotlib.pyplot as plt
 
     picks = np.linspace(0, len(sim_q) - 1, min(panels, len(sim_q))).round().astype(int)
-    images = list(_images(model, sim_q, ref_q, picks, width, height))
+    images = list(_images(model, sim_q, ref_q, picks, width, height, ground))
     strip = np.concatenate(images, axis=1) if images else np.zeros((height, width, 3), np.uint8)
     plt.imsave(out, strip)
 

@@ -73,3 +73,34 @@ def test_kinematic_playback_has_no_ghost(tmp_path: Path, backend: str) -> None:
     assert mimic_motions(["render", "jog", "--seconds", "0.1", "--size", "96", "64", "--out", str(out)]) == 0
     _, frames = _read_video(out)
     assert all(_orange(f) == 0 for f in frames)
+
+
+def test_render_draws_the_clips_terrain(tmp_path: Path, backend: str) -> None:
+    from dataclasses import replace
+
+    from common.motion.dataset import resolve_clips
+    from common.motion.motion_import.deepmimic import write_deepmimic
+    from common.motion.terrain import Terrain
+
+    # The walk on the flat floor, on a level terrain at height 0, and on it with a 25 cm box to the character's
+    # right (x 0.8 to 1.4 m, |y| <= 0.3 m; the camera looks along +y, +x to the right of the picture).
+    walk = resolve_clips(["walk"])[0]
+    xs, ys = -1.0 + 0.05 * np.arange(81), -1.0 + 0.05 * np.arange(41)
+    box = np.zeros((41, 81))
+    box[np.ix_(np.abs(ys) <= 0.3 + 1e-9, (xs >= 0.8 - 1e-9) & (xs <= 1.4 + 1e-9))] = 0.25
+    clips = {"flat": walk, "level": replace(walk, terrain=Terrain(np.zeros((41, 81)), 0.05, np.array([-1.0, -1.0]))),
+             "box": replace(walk, terrain=Terrain(box, 0.05, np.array([-1.0, -1.0])))}  # fmt: skip
+    first = {}
+    for name, clip in clips.items():
+        write_deepmimic(tmp_path / f"{name}.txt", clip)  # the terrain in its .terrain.h5 sidecar
+        out = tmp_path / f"{name}.mp4"
+        assert mimic_motions(["render", str(tmp_path / f"{name}.txt"), "--seconds", "0.05", "--size", "96", "64",
+                              "--out", str(out)]) == 0  # fmt: skip
+        first[name] = _read_video(out)[1][0].astype(int)
+    # The box is drawn: where it stands, and only there, the picture differs from the level terrain's (measured: 89
+    # pixels in columns 66-80, rows 48-53, the character in the middle of the picture).
+    changed = np.abs(first["box"] - first["level"]).max(axis=-1) > 40
+    rows, cols = np.nonzero(changed)
+    assert changed.sum() > 30 and cols.min() > 60 and rows.min() > 40
+    # And it differs from the flat clip's picture there.
+    assert (np.abs(first["box"] - first["flat"]).max(axis=-1) > 40)[changed].mean() > 0.9

@@ -1,7 +1,8 @@
 """Clean-up of clips (imported or DeepMimic): trim, left-right mirror, ground fix and loop mode.
 
 All functions take and return :class:`~common.motion.motion.Clip` keyframes in the project's frame (Z up, the character
-facing +X with its left at +Y).
+facing +X with its left at +Y). The ground fix measures heights above the flat floor, or above a terrain
+(:mod:`common.motion.terrain`) when one is given: fitting a clip to a terrain (:mod:`.terrain_fit`) ends with it.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import numpy as np
 from common.character.humanoid import DEEPMIMIC_JOINTS, BodyGeometry, Humanoid, mirror_name
 from common.motion.library import MotionLibrary
 from common.motion.motion import LOOP_MODES, Clip
+from common.motion.terrain import Terrain
 
 STANCE_SPEED = 0.2  # m/s: a foot slower than this is taken to be standing on the ground
 GROUND_TOLERANCE = 0.01  # m: a stance foot deeper under the floor than this is lifted out by --fix-ground
@@ -35,6 +37,27 @@ def trim(clip: Clip, start: float, end: float) -> Clip:
                    root_rot=clip.root_rot[keep], joint_rot=clip.joint_rot[keep])  # fmt: skip
 
 
+def unroll(clip: Clip, humanoid: Humanoid, cycles: int) -> Clip:
+    """A wrap clip played for ``cycles`` cycles as the motion library continues it (each cycle turned and moved on by
+    the cycle transform, the loop seam as the library closes it), as a one-shot clip with a keyframe per control
+    frame: a walk long enough to climb a flight of stairs.
+
+    Raises:
+        ValueError: a one-shot clip, or ``cycles`` < 1.
+    """
+    from common.character.humanoid import hinges_to_joint_rotations
+
+    if not clip.loop or cycles < 1:
+        raise ValueError(f"{clip.source}: only a wrap clip can be unrolled, for 1 cycle or more (got "
+                         f"{'a one-shot clip' if not clip.loop else f'{cycles} cycles'})")  # fmt: skip
+    library = MotionLibrary.from_clips([clip], humanoid)
+    frames = cycles * (int(library.num_frames[0]) - 1) + 1
+    times = np.arange(frames) * library.dt
+    qpos = library.query(np.zeros(frames, dtype=np.int64), times).qpos
+    return replace(clip, loop=False, times=times, root_pos=qpos[:, :3].copy(), root_rot=qpos[:, 3:7].copy(),
+                   joint_rot=hinges_to_joint_rotations(humanoid, qpos))  # fmt: skip
+
+
 def _mirror_quat(q: np.ndarray) -> np.ndarray:
     """Reflection through the XZ plane: M R M with M = diag(1, -1, 1) is (w, x, y, z) -> (w, -x, y, -z)."""
     return q * np.array([1.0, -1.0, 1.0, -1.0])
@@ -42,12 +65,20 @@ def _mirror_quat(q: np.ndarray) -> np.ndarray:
 
 def mirror(clip: Clip) -> Clip:
     """Left-right mirror (as DeepMimic's ``_mirror`` clips): reflected through the character's sagittal plane
-    (y -> -y) with every left joint's rotation swapped for its right twin's. Mirroring twice is the identity."""
+    (y -> -y) with every left joint's rotation swapped for its right twin's. Mirroring twice is the identity.
+
+    A terrain is reflected with the clip (its rows reversed). Its nodes are reflected exactly; inside a cell whose four
+    corners are not in one plane the reflected field differs from the reflected surface, because every cell of a
+    heightfield is split along the same diagonal (a terrain constant across y, as stairs and slopes, is exact)."""
     names = [n for n, _, _ in DEEPMIMIC_JOINTS]
     swap = [names.index(mirror_name(n)) for n in names]
     root_pos = clip.root_pos * np.array([1.0, -1.0, 1.0])
+    terrain = clip.terrain
+    if terrain is not None:
+        far = terrain.origin[1] + (terrain.shape[0] - 1) * terrain.cell_size
+        terrain = Terrain(terrain.heights[::-1].copy(), terrain.cell_size, np.array([terrain.origin[0], -far]))
     return replace(clip, name=clip.name, root_pos=root_pos, root_rot=_mirror_quat(clip.root_rot),
-                   joint_rot=_mirror_quat(clip.joint_rot[:, swap]))  # fmt: skip
+                   joint_rot=_mirror_quat(clip.joint_rot[:, swap]), terrain=terrain)  # fmt: skip
 
 
 def set_loop(clip: Clip, mode: str) -> Clip:
@@ -62,7 +93,8 @@ class FootContact:
     """Feet of a clip on the control-rate grid.
 
     Attributes:
-        height: Lowest point of each foot above the ground. Shape: (T, 2).
+        height: Lowest point of each foot above the ground (the floor, or the terrain under each of the foot's support
+            points). Shape: (T, 2).
         speed: Speed of each foot's origin (the ankle). Shape: (T, 2).
     """
 
@@ -75,11 +107,53 @@ class FootContact:
         return self.speed < STANCE_SPEED
 
 
+def support_points(geometry: BodyGeometry, body_pos: np.ndarray, body_rot: np.ndarray) -> np.ndarray:
+    """World x, y, z of every body's support points (sphere centre, capsule ends, box corners).
+
+    z is computed with the arithmetic of :meth:`~common.character.humanoid.BodyGeometry.lowest_points`, so that over a
+    ground of height 0 :func:`clearance` equals it bit for bit (the ground fix on a flat terrain is the floor's).
+
+    Args:
+        body_pos: Shape: (..., B, 3).
+        body_rot: Shape: (..., B, 4), (w, x, y, z).
+
+    Returns:
+        Shape: (3, ..., B, 8).
+    """
+    w, x, y, z = (body_rot[..., i] for i in range(4))
+    rows = (
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+    )
+    return np.stack([body_pos[..., a, None] + np.einsum("...bk,bpk->...bp", row, geometry.points)
+                     for a, row in enumerate(rows)])  # fmt: skip
+
+
+def clearance(geometry: BodyGeometry, body_pos: np.ndarray, body_rot: np.ndarray,
+              terrain: Terrain | None) -> np.ndarray:  # fmt: skip
+    """Height of each body's lowest surface point above the ground: the floor (``terrain`` None, as
+    :meth:`~common.character.humanoid.BodyGeometry.lowest_points`) or the least, over the body's support points, of
+    the point's height above the terrain under it, less the geom's radius: the judge's measure
+    (:func:`common.sim.terrain.support_clearance`, equal to rounding; ``common/motion`` does not import
+    ``common/sim``), computed here with ``lowest_points``' arithmetic (:func:`support_points`).
+
+    Returns:
+        Shape: (..., B).
+    """
+    if terrain is None:
+        return geometry.lowest_points(body_pos, body_rot)
+    px, py, pz = support_points(geometry, body_pos, body_rot)
+    return (pz - terrain.height_at(px, py)).min(axis=-1) - geometry.radius
+
+
 def foot_contact(clip: Clip, humanoid: Humanoid) -> FootContact:
-    """Foot heights and speeds of a clip, from the motion library's MuJoCo kinematics (played one-shot)."""
+    """Foot heights above the clip's ground (the floor, or its terrain) and speeds, from the motion library's MuJoCo
+    kinematics (played one-shot)."""
     library = MotionLibrary.from_clips([replace(clip, loop=False)], humanoid)
     frames = library.frames
-    height = BodyGeometry(humanoid).lowest_points(frames.body_pos, frames.body_rot)[:, humanoid.foot_indices]
+    height = clearance(BodyGeometry(humanoid), frames.body_pos, frames.body_rot, clip.terrain)
+    height = height[:, humanoid.foot_indices]
     speed = np.linalg.norm(frames.body_linvel[:, humanoid.foot_indices], axis=-1)
     return FootContact(height, speed)
 
@@ -91,7 +165,7 @@ class GroundFix:
     Attributes:
         shift: The whole clip's shift in metres (+ = up): minus the median stance-foot height.
         lift: The local lift added on top, per keyframe, metres (>= 0). Shape: (M,).
-        deepest: The lowest stance foot before the local lift (after the shift), metres above the floor.
+        deepest: The lowest stance foot before the local lift (after the shift), metres above the ground.
     """
 
     shift: float
@@ -111,6 +185,10 @@ def fix_ground(clip: Clip, humanoid: Humanoid) -> tuple[Clip, GroundFix]:
     """Puts the feet on the floor in stance: the whole clip shifted (:func:`shift_to_ground`), then lifted where a
     stance foot is still more than :data:`GROUND_TOLERANCE` under the floor (:func:`lift_out_of_floor`).
 
+    The floor is the clip's ground: the flat floor at height 0, or the clip's terrain (heights above it measured
+    under each support point of a foot, :func:`clearance`). On a terrain flat at height 0 the result equals the flat
+    floor's bit for bit.
+
     Returns:
         (the fixed clip, what was done).
     """
@@ -120,7 +198,7 @@ def fix_ground(clip: Clip, humanoid: Humanoid) -> tuple[Clip, GroundFix]:
 
 
 def shift_to_ground(clip: Clip, humanoid: Humanoid) -> tuple[Clip, float]:
-    """Lifts or lowers the whole clip so that its feet rest on the floor in stance.
+    """Lifts or lowers the whole clip so that its feet rest on the floor (the clip's ground) in stance.
 
     The shift is minus the median lowest-point height of the feet over their stance frames (foot speed below
     :data:`STANCE_SPEED`), or over all frames of the lower foot if no foot is ever at rest.
@@ -169,7 +247,8 @@ def lift_out_of_floor(clip: Clip, humanoid: Humanoid, passes: int = 3) -> tuple[
 
 
 def smooth_lift(need: np.ndarray, rise: float, half: int) -> np.ndarray:
-    """The lift of :func:`lift_out_of_floor`: a curve never below ``need``, changing by at most ``rise`` per frame.
+    """The lift of :func:`lift_out_of_floor` (and the offset of a terrain fit): a curve never below ``need``,
+    changing by at most ``rise`` per frame.
 
     First the cone envelope c_k = max_j (d_j - rise |k - j|), the lowest curve above d whose slope is at most
     ``rise`` (two running passes); then its running maximum over +-``half`` frames and a Hann window of that
@@ -177,19 +256,19 @@ def smooth_lift(need: np.ndarray, rise: float, half: int) -> np.ndarray:
     the maximum, so their weighted mean is too). A maximum and a mean of curves of slope <= ``rise`` keep it.
 
     Args:
-        need: d >= 0 per frame. Shape: (T,).
+        need: d per frame (any sign; the ground fix's are >= 0, and its lift then too). Shape: (T,).
         rise: The largest change per frame, metres.
         half: Half-width of the rounding, frames.
 
     Returns:
-        The lift per frame, 0 wherever no d is within reach of its ramps and the rounding. Shape: (T,).
+        The curve per frame, equal to d wherever d is constant over the reach of its ramps and the rounding.
+        Shape: (T,).
     """
     cone = need.astype(np.float64).copy()
     for k in range(1, len(cone)):
         cone[k] = max(cone[k], cone[k - 1] - rise)
     for k in range(len(cone) - 2, -1, -1):
         cone[k] = max(cone[k], cone[k + 1] - rise)
-    cone = np.maximum(cone, 0.0)
     padded = np.pad(cone, half, mode="edge")
     peak = np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1).max(axis=-1)
     weights = np.sin(np.pi * np.arange(1, 2 * half + 2) / (2 * half + 2)) ** 2
