@@ -15,15 +15,20 @@ Scheduling (``--parallel``):
 A run directory that already holds a finished run of the same command is reused; an unfinished one is resumed
 (``--resume``), so an interrupted suite continues where it stopped.
 
-Suites: walk, run, jump, locomotion (walk, jog, run, stealthy_walk, zombie_walk), all20 (the 20 bundled clips), and
-split, the generalisation protocol: train on SPLIT_TRAIN (15 short clips and the 9 long ones), judge on SPLIT_TEST
-(5 short clips never trained on: ``report/``) and on the training clips (``report-train/``). The split was fixed
-once, before any run was judged on it, and is never tuned: one clip of each motion family whose other members are in
-training (walk: stealthy_walk, zombie_walk, long_walk*; jog: run; sideflip: backflip, cartwheel; kick: spinkick,
-punch; dance_b: dance_a, dance_spin).
+Suites: walk, run, jump, locomotion (walk, jog, run, stealthy_walk, zombie_walk), all20 (the 20 bundled clips),
+terrain (walk, jog and run fitted to stairs, a slope and rough ground: the 9 bundled clips of
+``benchmarks/terrain_clips.py``, trained with each learner's terrain observation on, :data:`SUITE_SETTINGS`, and judged
+on them in ``report/`` and on the flat locomotion set in ``report-flat/``), and split, the generalisation protocol:
+train on SPLIT_TRAIN (15 short clips and the 9 long ones), judge on SPLIT_TEST (5 short clips never trained on:
+``report/``) and on the training clips (``report-train/``). The split was fixed once, before any run was judged on it,
+and is never tuned: one clip of each motion family whose other members are in training (walk: stealthy_walk,
+zombie_walk, long_walk*; jog: run; sideflip: backflip, cartwheel; kick: spinkick, punch; dance_b: dance_a,
+dance_spin).
 
 Run:   ``.venv/bin/python benchmarks/compare_trackers.py --suite walk --seeds 2 --minutes 30 --parallel 2 \
         --out runs/suite-walk``
+Other suites' runs judged beside the suite's (``--also-judge``): the flat-trained locomotion runs on the terrain clips,
+        ``... --suite terrain --out runs/suite-terrain --also-judge runs/suite-locomotion/runs/*``
 Smoke: ``.venv/bin/python benchmarks/compare_trackers.py --debug --seeds 2 --minutes 0.1 --out /tmp/compare-smoke``
 """
 
@@ -53,12 +58,28 @@ SUITES = {
     "jump": ["jump"],
     "locomotion": ["walk", "jog", "run", "stealthy_walk", "zombie_walk"],
     "all20": ["all"],
+    "terrain": ["terrain"],
 }
 SPLIT_TEST = ["walk", "jog", "sideflip", "kick", "dance_b"]
 SPLIT_TRAIN = ["backflip", "cartwheel", "crawl", "dance_a", "dance_spin", "getup_facedown", "getup_faceup", "jump",
                "punch", "roll", "run", "spin", "spinkick", "stealthy_walk", "zombie_walk", "long"]  # fmt: skip
 SUITES["split"] = SPLIT_TRAIN
 JUDGED = {"split": SPLIT_TEST}  # suites judged on other clips than they train on (and on their own in report-train/)
+# Further reports of a suite, (folder, clips): the terrain-trained runs on flat ground, against the flat-trained ones.
+ALSO_JUDGED = {"terrain": [("report-flat", SUITES["locomotion"])]}
+# PARC's terrain observation: a 1 m heightmap at 0.1 m (the key's documented PARC value) and the reference's contact
+# labels at the default's future frames (PARC observes each target frame's contacts); SuperTrack reads the same and its
+# W predicts contacts (weight 1: untuned). Per learner, before the command's own --set, so that those override them.
+PARC_FRAMES = "[1, 2, 4, 8, 16]"
+PARC_OBSERVATION = ["observation.heightmap_extent=1.0", f"observation.contact_frames={PARC_FRAMES}"]
+SUITE_SETTINGS = {
+    "terrain": {
+        "supertrack": ["terrain.heightmap_extent=1.0", "terrain.contact_weight=1.0",
+                       f"terrain.contact_frames={PARC_FRAMES}"],
+        "ppo": PARC_OBSERVATION,
+        "rsl_rl": PARC_OBSERVATION,
+    },
+}  # fmt: skip
 ONE_CORE = ["gym.threads=1", "train.torch_threads=1", "train.eval.threads=1"]
 COMMAND_FILE = "suite_command.json"  # the command a suite ran in a run directory (reuse only on the same command)
 
@@ -84,7 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--minutes", type=float, default=12.0, help="training wall-clock per run, minutes")
     parser.add_argument("--seeds", type=int, default=1, help="seeds per method (0 .. N-1), for the spread")
     parser.add_argument("--parallel", type=int, default=1,
-                        help="runs at a time; above 1 every run gets one core (see the scheduling notes)")
+                        help="runs at a time; above 1 every run gets one core (see the scheduling notes)")  # fmt: skip
     parser.add_argument("--learners", nargs="+", choices=sorted(trainable()),
                         default=[n for n in trainable() if LEARNERS[n].suite_default],
                         help="methods to train (default: supertrack and ppo; the learner registry, report/learners.py, "
@@ -103,20 +124,27 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--oracle", action="append", default=[], metavar="SAMCON_RUN_DIR",
                         help="a track-samcon run directory whose open-loop paths join the report as the oracle row "
                              "(repeatable; checked before any training starts)")  # fmt: skip
+    parser.add_argument("--also-judge", nargs="+", action="extend", default=[], metavar="RUN_DIR",
+                        help="finished runs of another suite judged beside the suite's runs in every report (e.g. "
+                             "the flat-trained locomotion runs on --suite terrain; checked before any training "
+                             "starts)")  # fmt: skip
     return parser
 
 
-def check_oracles(dirs: list[str]) -> None:
-    """Refuses, before anything trains, an --oracle that is not a finished track-samcon run directory."""
+def check_oracles(dirs: list[str], option: str = "--oracle") -> None:
+    """Refuses, before anything trains, an --oracle that is not a finished track-samcon run directory, or (``option``
+    ``--also-judge``) a directory that is not a run directory, or a track-samcon one."""
     from report.runs import ReportError, load_run
 
     for d in dirs:
         try:
             run = load_run(d)
         except ReportError as e:
-            raise SystemExit(f"error: --oracle {d}: {e}") from e
-        if run.learner != "samcon":
+            raise SystemExit(f"error: {option} {d}: {e}") from e
+        if option == "--oracle" and run.learner != "samcon":
             raise SystemExit(f"error: --oracle {d}: a {run.learner} run, not a track-samcon run")
+        if option != "--oracle" and run.learner == "samcon":
+            raise SystemExit(f"error: {option} {d}: a track-samcon run; give it with --oracle")
 
 
 def suite_motions(args: argparse.Namespace) -> list[str]:
@@ -131,7 +159,7 @@ def judged_motions(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     judged on held-out clips also ``report-train`` on the clips it trained on."""
     if args.suite in JUDGED:
         return [("report", list(JUDGED[args.suite])), ("report-train", suite_motions(args))]
-    return [("report", suite_motions(args))]
+    return [("report", suite_motions(args)), *((f, list(m)) for f, m in ALSO_JUDGED.get(args.suite, []))]
 
 
 def jobs(args: argparse.Namespace, out: Path) -> list[Job]:
@@ -153,7 +181,7 @@ def jobs(args: argparse.Namespace, out: Path) -> list[Job]:
             cmd = [sys.executable, "-m", str(spec.train), "--config", str(config),
                    "--out", str(run_dir), "--seed", str(seed), "--max-minutes", str(args.minutes),
                    "--motions", *suite_motions(args)]  # fmt: skip
-            for s in sets:
+            for s in [*SUITE_SETTINGS.get(args.suite or "", {}).get(learner, []), *sets]:
                 cmd += ["--set", s]
             out_jobs.append(Job(learner, seed, run_dir, cmd))
     return out_jobs
@@ -232,6 +260,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("error: --seeds and --parallel must be >= 1 and --minutes > 0")
     out = Path(args.out)
     check_oracles(args.oracle)
+    check_oracles(args.also_judge, "--also-judge")
     todo = train_all(args, out)
     if args.train_only:
         return 0
@@ -239,8 +268,8 @@ def main(argv: list[str] | None = None) -> int:
     options += ["--no-render"] * args.no_render + ["--no-pushes"] * args.no_pushes
     options += [] if args.video_clips is None else ["--video-clips", str(args.video_clips)]
     for folder, motions in judged_motions(args):
-        compare_main([*(str(j.out) for j in todo), *args.oracle, "--out", str(out / folder), "--motions", *motions,
-                      *options])  # fmt: skip
+        compare_main([*(str(j.out) for j in todo), *args.also_judge, *args.oracle, "--out", str(out / folder),
+                      "--motions", *motions, *options])  # fmt: skip
     return 0
 
 

@@ -40,7 +40,7 @@ from common.cli import (
 )
 from common.config import ConfigError
 from common.evaluation.evaluate import EvalConfig, EvalResult, Policy, evaluate
-from common.motion.dataset import bundled_clip_names, load_motions
+from common.motion.dataset import bundled_clip_names, bundled_terrain_clip_names, load_motions
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
 from common.run.checkpoint import CheckpointError
@@ -81,14 +81,15 @@ class Report:
 
 
 def motion_union(lists: Sequence[Sequence[str]]) -> list[str]:
-    """The runs' motion specs, each once, in order of appearance; with ``all`` among them the bundled short clips'
-    own names are dropped (``all`` holds them, and a clip may be loaded once)."""
+    """The runs' motion specs, each once, in order of appearance; with ``all`` (``terrain``) among them the bundled
+    short (terrain) clips' own names are dropped (the group holds them, and a clip may be loaded once)."""
     out: list[str] = []
     for items in lists:
         out += [x for x in items if x not in out]
-    if "all" in out:
-        bundled = set(bundled_clip_names())
-        out = [x for x in out if x not in bundled]
+    for group, names in (("all", bundled_clip_names), ("terrain", bundled_terrain_clip_names)):
+        if group in out:
+            held = set(names())
+            out = [x for x in out if x not in held]
     return out
 
 
@@ -254,8 +255,8 @@ def _markdown(report: Report, strips: dict[str, list[tuple[str, Path]]],
     lines += ["", f"Every run re-evaluated by `common.evaluation.evaluate` on motions `{', '.join(report.motions)}` "
               f"(clips: {', '.join(report.results[0].clips)}), {p.starts_per_clip} start(s) per clip, "
               f"{p.max_frames} frames per episode, seed {p.seed}. Best value of each row in bold.", ""]  # fmt: skip
-    lines += [PROTOCOL if p.full_horizon else "The runs are scored until their first failure (the earlier "
-              "protocol, `train.eval.full_horizon: false`): a method can score lower errors by failing sooner.", ""]
+    lines += [PROTOCOL if p.full_horizon else "The runs are scored until their first failure (the earlier protocol, "
+              "`train.eval.full_horizon: false`): a method can score lower errors by failing sooner.", ""]  # fmt: skip
     lines += ["## Learning curves (from the training logs)", "", "![learning curves](learning_curves.png)", ""]
     lines += ["## Tracking metrics (re-evaluated)", "", tables.metric_tables(labels, report.results), ""]
     if report.pushed:
@@ -307,7 +308,7 @@ PROTOCOL = ("**Protocol.** Every episode plays its whole horizon (the frames abo
             "failing sooner never lowers a method's error. Survival: episodes the rule never failed; episode length: "
             "the share of the horizon before the first failure; success (UHC/PHC): no failure and a mean body error "
             "never above 0.5 m; `mpjpe_g_succ` / `mpjpe_l_succ`: the errors over the successful episodes only "
-            "(PHC/UHC), to be read with the success rate.")
+            "(PHC/UHC), to be read with the success rate.")  # fmt: skip
 
 
 def _results_json(report: Report) -> dict[str, Any]:
@@ -348,7 +349,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "run's MPJPE-g")  # fmt: skip
     parser.add_argument("--no-render", action="store_true", help="skip the filmstrips and videos")
     parser.add_argument("--video-clips", type=non_negative_int, default=None, metavar="N",
-                        help="clips per method rendered as MP4 (first run of each learner; default: every clip)")
+                        help="clips per method rendered as MP4 (first run of each learner; default: every "
+                             "clip)")  # fmt: skip
     parser.add_argument("--no-pushes", action="store_true",
                         help="skip the robustness re-evaluation (pushes on the pelvis)")  # fmt: skip
     parser.add_argument("--threads", type=positive_int, default=1, help="torch threads")

@@ -41,13 +41,29 @@ READABLE_VERSIONS = (1, 2, 3)
 UNIT_QUAT_TOLERANCE = 1e-3  # a stored rotation's length may be off 1 by this much (written normalised in float64)
 
 
+TERRAIN_PACK = "terrain_clips.h5"
+"""The terrain suite's clips (walk, jog, run on stairs, a slope and rough ground; ``benchmarks/terrain_clips.py``)."""
+
+
 def bundled_motion_dir() -> Path:
-    """The folder of the bundled DeepMimic clips (``humanoid3d_*.txt``; long clips in ``long_clips.h5``)."""
+    """The folder of the bundled DeepMimic clips (``humanoid3d_*.txt``; long clips in ``long_clips.h5``, the terrain
+    suite's in :data:`TERRAIN_PACK`)."""
     return Path(str(resources.files("common.motion") / "data" / "deepmimic" / "motions"))
 
 
 def bundled_clip_names() -> list[str]:
+    """The 20 short clips, ``all``."""
     return sorted(p.stem.removeprefix("humanoid3d_") for p in bundled_motion_dir().glob("humanoid3d_*.txt"))
+
+
+def bundled_terrain_clip_names() -> list[str]:
+    """The terrain suite's clips, ``terrain`` (``walk_stairs``, ...), each a name of its own; none before
+    ``benchmarks/terrain_clips.py`` has built the pack."""
+    path = bundled_motion_dir() / TERRAIN_PACK
+    if not path.exists():
+        return []
+    with h5py.File(path, "r") as f:
+        return sorted(k for k in f.keys() if isinstance(f[k], h5py.Dataset))
 
 
 def _hdf5_format(path: Path) -> str | None:
@@ -60,10 +76,12 @@ def _hdf5_format(path: Path) -> str | None:
 
 
 def resolve_clips(specs: list[str]) -> list[Clip]:
-    """Reads clips from a list of specs: a bundled clip name (``walk``), ``all`` (the 20 short clips), ``long``
-    (the bundled long clips), a DeepMimic ``.txt`` file, a folder of them, or a clip pack ``.h5``.
+    """Reads clips from a list of specs: a bundled clip name (``walk``, or a terrain clip's: ``walk_stairs``), ``all``
+    (the 20 short clips), ``long`` (the bundled long clips), ``terrain`` (the terrain suite's 9 clips, each with its
+    terrain), a DeepMimic ``.txt`` file, a folder of them, or a clip pack ``.h5``.
     """
     clips: list[Clip] = []
+    terrain_pack: list[Clip] | None = None  # read once for all the specs that name its clips
     for spec in specs:
         path = Path(spec)
         if spec == "all":
@@ -86,6 +104,10 @@ def resolve_clips(specs: list[str]) -> list[Clip]:
             clips += read_clip_pack(path)
         elif (bundled_motion_dir() / f"humanoid3d_{spec}.txt").exists():
             clips.append(read_deepmimic(bundled_motion_dir() / f"humanoid3d_{spec}.txt"))
+        elif spec == "terrain" or (not path.exists() and spec in bundled_terrain_clip_names()):
+            if terrain_pack is None:
+                terrain_pack = read_clip_pack(bundled_motion_dir() / TERRAIN_PACK)
+            clips += [c for c in terrain_pack if spec in ("terrain", c.name)]
         elif path.exists():
             hint = "; import it with `mimic-motions import`" if path.suffix.lower() == ".bvh" else ""
             raise MotionFormatError(f"{path}: not a motion file (a DeepMimic .txt clip, or a clip pack or motion "
@@ -93,7 +115,7 @@ def resolve_clips(specs: list[str]) -> list[Clip]:
         else:
             raise MotionFormatError(
                 f"{spec}: no such motion file, folder or bundled clip (bundled: {', '.join(bundled_clip_names())},"
-                " 'all', 'long')"
+                f" 'all', 'long'; on terrain: {', '.join(bundled_terrain_clip_names())}, 'terrain')"
             )
     names = [c.name for c in clips]
     dupes = sorted({n for n in names if names.count(n) > 1})

@@ -42,6 +42,7 @@ from common.config import ConfigError
 from common.motion.dataset import load_motions, resolve_clips, save_dataset
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
+from common.motion.motion_import.cleanup import STANCE_SPEED, clearance
 from common.motion.terrain import SIDECAR_SUFFIX, Terrain, check_terrain, read_terrain_file, sidecar_path
 
 
@@ -50,7 +51,8 @@ def summary(library: MotionLibrary, sources_fps: dict[str, float], humanoid: Hum
     lines = [f"{'clip':<20} {'frames':>6} {'duration':>9} {'src fps':>7} {'loop':>5} {'foot min':>9} {'foot max':>9}"]
     for i, clip in enumerate(library.clips):
         s = slice(library.start[i], library.start[i] + library.num_frames[i])
-        low = geometry.lowest_points(library.frames.body_pos[s], library.frames.body_rot[s])[:, humanoid.foot_indices]
+        low = clearance(geometry, library.frames.body_pos[s], library.frames.body_rot[s], clip.terrain)
+        low = low[:, humanoid.foot_indices]
         low = low.min(axis=-1)
         lines.append(
             f"{clip.name:<20} {library.num_frames[i]:>6d} {clip.duration:>8.3f}s {sources_fps.get(clip.name, 0):>7.1f}"
@@ -58,7 +60,8 @@ def summary(library: MotionLibrary, sources_fps: dict[str, float], humanoid: Hum
         )
     lines.append(
         f"{len(library.clips)} clips, {library.num_frames.sum()} frames at {humanoid.physics.control_hz:g} Hz,"
-        f" {library.duration.sum():.1f} s; foot = lowest corner of either foot box above the ground"
+        f" {library.duration.sum():.1f} s; foot = lowest corner of either foot box above the ground (the clip's "
+        "terrain, if it has one)"
     )
     return "\n".join(lines)
 
@@ -105,7 +108,8 @@ def _main(argv: list[str] | None) -> int:
         "motions",
         nargs="*",
         default=["all"],
-        help="clip names (e.g. walk), 'all' (20 short clips), 'long', .txt files, folders or .h5 files",
+        help="clip names (e.g. walk, walk_stairs), 'all' (20 short clips), 'long', 'terrain' (the 9 clips on "
+        "terrain), .txt files, folders or .h5 files",
     )
     c = sub.add_parser("convert", help="resample clips to the control rate and write one HDF5 motion dataset")
     c.add_argument("motions", nargs="+", help="as for summary")
@@ -159,6 +163,9 @@ def _main(argv: list[str] | None) -> int:
     f.add_argument("--cycles", type=positive_int,
                    help="play a wrap clip for this many cycles first, as one one-shot clip (a walk long enough for "
                         "a flight of stairs)")  # fmt: skip
+    f.add_argument("--stance-speed", type=positive_float, default=STANCE_SPEED,
+                   help="a foot slower than this (m/s) may be in stance (default: the ground fix's "
+                        f"{STANCE_SPEED:g}; a jog or run recorded at 30 fps: 1)")  # fmt: skip
     f.add_argument("--name", help="clip name (default: the source's)")
     f.add_argument("--out", required=True, help="output: DeepMimic .txt (+ .terrain.h5 sidecar) or motion dataset "
                                                 ".h5 (written atomically)")  # fmt: skip
@@ -311,14 +318,16 @@ def _fit_terrain(args: argparse.Namespace, humanoid: Humanoid) -> int:
             notes.append(f"unrolled {args.cycles} cycles: {clip.num_keyframes} keyframes, {clip.duration:.3f} s, "
                          "one-shot")  # fmt: skip
         notes.append(f"terrain {where}: {describe_terrain(terrain)}")
-        fitted, fit = fit_terrain(clip, humanoid, terrain)
+        fitted, fit = fit_terrain(clip, humanoid, terrain, args.stance_speed)
     except ValueError as e:  # a clip that leaves the terrain, --cycles on a one-shot clip
         fail(one_line(e))
     check_playable(fitted, humanoid)
     _write(args.out, lambda: write_clip(args.out, fitted, humanoid))
     sidecar = f" and {sidecar_path(args.out)}" if Path(args.out).suffix == ".txt" else " (terrain inside)"
-    print("\n".join(notes + fit.report() + [f"wrote {args.out}{sidecar}: {fitted.num_keyframes} keyframes, "
-                                            f"{fitted.duration:.3f} s, loop {'wrap' if fitted.loop else 'none'}"]))
+    wrote = f"wrote {args.out}{sidecar}: {fitted.num_keyframes} keyframes, {fitted.duration:.3f} s, loop " + (
+        "wrap" if fitted.loop else "none"
+    )
+    print("\n".join([*notes, *fit.report(), wrote]))
     return 0
 
 

@@ -63,8 +63,9 @@ def add_common_arguments(parser: argparse.ArgumentParser, command: str) -> None:
                              "--resume are enough to continue a run)")  # fmt: skip
     parser.set_defaults(default_config=str(default_config(command)), config_command=command)
     parser.add_argument("--motions", nargs="+", default=None,
-                        help="motions to track, overriding train.motions: bundled clip names (walk, run, ...), 'all', "
-                             "'long', DeepMimic .txt files, folders, or a motion dataset .h5")  # fmt: skip
+                        help="motions to track, overriding train.motions: bundled clip names (walk, run, "
+                             "walk_stairs, ...), 'all', 'long', 'terrain', DeepMimic .txt files, folders, or a "
+                             "motion dataset .h5")  # fmt: skip
     parser.add_argument("--device", default=None, type=_device_option,
                         help="torch device for the networks, e.g. cpu or cuda (train.device)")  # fmt: skip
     parser.add_argument("--out", default=None,

@@ -237,3 +237,22 @@ def test_the_fit_measures_feet_as_the_judge_does(humanoid: Humanoid) -> None:
     flat = Terrain(np.zeros((41, 81)), 0.05, np.array([-1.0, -1.0]))
     np.testing.assert_array_equal(cleanup.clearance(geometry, frames.body_pos, frames.body_rot, flat),
                                   geometry.lowest_points(frames.body_pos, frames.body_rot))  # fmt: skip
+
+
+def test_the_stance_speed_sets_which_slow_feet_stand(standing: Clip, humanoid: Humanoid) -> None:
+    """The glide's feet move with the root: 5 m/s at its middle, under 1 m/s for a few frames at each end. A foot
+    slower than ``stance_speed`` (and at its usual height: the pose never changes) stands; the report says which."""
+    speed = cleanup.foot_contact(standing, humanoid).speed
+    terrain = _box_terrain()
+    default = terrain_fit.fit_terrain(standing, humanoid, terrain)[1]
+    fitted, fit = terrain_fit.fit_terrain(standing, humanoid, terrain, stance_speed=1.0)
+    np.testing.assert_array_equal(default.stance, speed < cleanup.STANCE_SPEED)
+    np.testing.assert_array_equal(fit.stance, speed < 1.0)
+    # The glide's first and last frames stand too: the library's central difference there is x(dt) / (2 dt), the
+    # smoothstep at u = 1/18 of its 0.3 s, 0.0089 m / (1/30 s) = 0.27 m/s; the next frame's is 1.03 m/s.
+    assert fit.stance.sum() == default.stance.sum() + 2 * 2
+    assert "foot slower than 1 m/s" in fit.report()[0] and "foot slower than 0.2 m/s" in default.report()[0]
+    # Standing still at either end, the result is the same: the box's 10 cm under both feet at x = 1.
+    rise = fitted.root_pos[:, 2] - standing.root_pos[:, 2]
+    assert np.abs(rise[standing.times < 0.9]).max() < 1e-12
+    np.testing.assert_allclose(rise[standing.times > 1.4], BOX, rtol=0, atol=1e-12)

@@ -225,3 +225,5 @@ def test_motion_union_loads_a_clip_once_when_a_run_trained_on_all() -> None:
     # A run on every clip beside runs on a few: "all" holds walk and run already.
     assert motion_union([["all"], ["walk", "run"], ["my_take.txt"]]) == ["all", "my_take.txt"]
     assert motion_union([["walk"], ["all"]]) == ["all"]
+    # "terrain" holds the terrain suite's clips: a run on walk_stairs beside one on the suite, and flat walk kept.
+    assert motion_union([["walk_stairs", "walk"], ["terrain"]]) == ["walk", "terrain"]

@@ -180,3 +180,55 @@ def test_an_oracle_is_checked_before_training_and_joins_every_report_with_the_op
     with pytest.raises(SystemExit):  # refused by argparse, before anything trains
         module.main(["--suite", "all20", "--out", str(tmp_path / "d"), "--video-clips", "-1"])
     assert not trained
+
+
+def _sets(cmd: list[str]) -> list[str]:
+    return [cmd[i + 1] for i, a in enumerate(cmd) if a == "--set"]
+
+
+def test_the_terrain_suite_trains_with_the_terrain_observation_and_the_flat_suites_as_before() -> None:
+    m = _suite_module()
+    parse = m.build_parser().parse_args
+    args = parse(["--suite", "terrain", "--parallel", "2", "--minutes", "90", "--learners", "supertrack", "ppo",
+                  "rsl_rl", "--set", "observation.contact_frames=[1]", "--out", "x"])  # fmt: skip
+    jobs = {j.learner: j for j in m.jobs(args, Path("x"))}
+    for job in jobs.values():
+        assert job.cmd[job.cmd.index("--motions") + 1 : job.cmd.index("--set")] == ["terrain"]
+    parc = ["observation.heightmap_extent=1.0", "observation.contact_frames=[1, 2, 4, 8, 16]"]
+    assert _sets(jobs["ppo"].cmd)[:2] == parc and _sets(jobs["rsl_rl"].cmd)[:2] == parc
+    assert _sets(jobs["supertrack"].cmd)[:3] == ["terrain.heightmap_extent=1.0", "terrain.contact_weight=1.0",
+                                                 "terrain.contact_frames=[1, 2, 4, 8, 16]"]  # fmt: skip
+    # The command's own --set comes after the suite's, so that it overrides them.
+    assert _sets(jobs["ppo"].cmd)[2] == "observation.contact_frames=[1]"
+    locomotion = ["walk", "jog", "run", "stealthy_walk", "zombie_walk"]
+    assert m.judged_motions(args) == [("report", ["terrain"]), ("report-flat", locomotion)]
+    # A flat suite's jobs are the commands they were before the terrain suite (written out by hand).
+    flat = m.jobs(parse(["--suite", "locomotion", "--parallel", "2", "--minutes", "60", "--out", "x"]), Path("x"))
+    config = str(m.ROOT / "configs" / "supertrack" / "default.yaml")
+    assert flat[0].cmd == [sys.executable, "-m", "supertrack.train", "--config", config, "--out",
+                           str(Path("x/runs/supertrack-s0")), "--seed", "0", "--max-minutes", "60.0", "--motions",
+                           *locomotion, "--set", "train.eval_every_minutes=7.5", "--set", "gym.threads=1", "--set",
+                           "train.torch_threads=1", "--set", "train.eval.threads=1"]  # fmt: skip
+    everyone = ["--learners", "supertrack", "ppo", "rsl_rl", "--out", "x"]
+    for suite in sorted(set(m.SUITES) - {"terrain"}):
+        for job in m.jobs(parse(["--suite", suite, *everyone]), Path("x")):
+            assert not any(s.startswith(("terrain.", "observation.")) for s in _sets(job.cmd)), (suite, job.cmd)
+
+
+def test_other_suites_runs_are_judged_beside_the_suites(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """--also-judge: finished runs of another suite (the flat-trained locomotion runs) join every report of the suite;
+    a SAMCON run is refused there (it is an --oracle), before anything trains."""
+    module = _suite_module()
+    import report.runs
+
+    monkeypatch.setattr(module, "train_all", lambda args, out: [])
+    monkeypatch.setattr(report.runs, "load_run", lambda d: type("R", (), {"learner": Path(d).name.split("-")[0]})())
+    calls: list[list[str]] = []
+    monkeypatch.setattr(module, "compare_main", calls.append)
+    flat = [str(tmp_path / "supertrack-s0"), str(tmp_path / "ppo-s0")]
+    assert module.main(["--suite", "terrain", "--out", str(tmp_path / "t"), "--also-judge", *flat, "--no-pushes"]) == 0
+    assert [c[: c.index("--out")] for c in calls] == [flat, flat]
+    locomotion = ["walk", "jog", "run", "stealthy_walk", "zombie_walk"]
+    assert [c[c.index("--motions") + 1 :] for c in calls] == [["terrain", "--no-pushes"], [*locomotion, "--no-pushes"]]
+    with pytest.raises(SystemExit, match="--also-judge .*samcon-run: a track-samcon run; give it with --oracle"):
+        module.main(["--suite", "terrain", "--out", str(tmp_path / "u"), "--also-judge", str(tmp_path / "samcon-run")])

@@ -8,9 +8,11 @@ ground under them is level).
 
 Per control-rate frame (the library's MuJoCo kinematics, as the ground fix measures the feet):
 
-1. **Stance**: a foot slower than :data:`~.cleanup.STANCE_SPEED` (the ground fix's rule) and within
-   :data:`STANCE_HEIGHT` of the clip's usual stance height (a slow foot high in the air, at a jump's top, is not
-   standing on anything).
+1. **Stance**: a foot slower than :data:`~.cleanup.STANCE_SPEED` (the ground fix's rule; ``stance_speed`` sets
+   another) and within :data:`STANCE_HEIGHT` of the clip's usual stance height (a slow foot high in the air, at a
+   jump's top, is not standing on anything). A jog or run recorded at 30 fps plants its foot at 0.1-1 m/s (it rolls
+   from heel to toe between two frames), so that the ground fix's 0.2 m/s sees 0-2 frames of a contact and the fit
+   interpolates the root through the rest: ``--stance-speed 1`` finds the whole contact.
 2. **The ground under a foot**: how much the foot's clearance drops from the flat floor to the terrain,
    g = clearance above the floor - clearance above the terrain (each the least over the foot box's corners, the
    terrain taken under each corner): raising the root by g puts the foot as high above the terrain as it was above the
@@ -77,10 +79,10 @@ class TerrainFit:
             (T, 2), bool.
         ground: The ground fix on the terrain that followed (its shift and local lift).
         before: (worst stance foot, worst foot at any frame): the lowest clearance above the terrain of the clip as
-            given, m (negative: in the terrain); stance as the ground fix takes it (a foot slower than
-            :data:`~.cleanup.STANCE_SPEED`).
+            given, m (negative: in the terrain); stance a foot slower than ``stance_speed``.
         after: The same of the fitted clip.
         loop_opened: A wrap clip written one-shot because its offset does not close the loop.
+        stance_speed: The stance rule's speed (m/s).
     """
 
     offset: np.ndarray
@@ -89,6 +91,7 @@ class TerrainFit:
     before: tuple[float, float]
     after: tuple[float, float]
     loop_opened: bool
+    stance_speed: float = cleanup.STANCE_SPEED
 
     def report(self) -> list[str]:
         cm = 100.0
@@ -96,7 +99,7 @@ class TerrainFit:
         either = int(self.stance.any(axis=1).sum())
         lines = [
             f"terrain fit: root offset {self.offset.min() * cm:+.1f} to {self.offset.max() * cm:+.1f} cm over "
-            f"{len(self.offset)} keyframes; stance frames (foot slower than {cleanup.STANCE_SPEED:g} m/s and within "
+            f"{len(self.offset)} keyframes; stance frames (foot slower than {self.stance_speed:g} m/s and within "
             f"{STANCE_HEIGHT * cm:g} cm of its stance height): right {int(self.stance[:, 0].sum())}, left "
             f"{int(self.stance[:, 1].sum())}, either {either} of {frames}",
             self.ground.report().replace("ground fixed", "then ground fixed on the terrain"),
@@ -110,8 +113,16 @@ class TerrainFit:
         return lines
 
 
-def fit_terrain(clip: Clip, humanoid: Humanoid, terrain: Terrain) -> tuple[Clip, TerrainFit]:
+def fit_terrain(clip: Clip, humanoid: Humanoid, terrain: Terrain,
+                stance_speed: float = cleanup.STANCE_SPEED) -> tuple[Clip, TerrainFit]:  # fmt: skip
     """Fits ``clip`` to ``terrain`` (see the module docstring) and attaches the terrain to it.
+
+    Args:
+        clip: The clip, on the flat floor or on another terrain.
+        humanoid: The character.
+        terrain: The ground to fit it to.
+        stance_speed: A foot slower than this (m/s) may be in stance (step 1); the ground fix that follows keeps its
+            own :data:`~.cleanup.STANCE_SPEED`.
 
     Returns:
         (the fitted clip, carrying ``terrain``; what was done).
@@ -126,7 +137,7 @@ def fit_terrain(clip: Clip, humanoid: Humanoid, terrain: Terrain) -> tuple[Clip,
     feet = humanoid.foot_indices
     own = cleanup.clearance(geometry, frames.body_pos, frames.body_rot, clip.terrain)[:, feet]  # the floor, mostly
     on = cleanup.clearance(geometry, frames.body_pos, frames.body_rot, terrain)[:, feet]
-    slow = np.linalg.norm(frames.body_linvel[:, feet], axis=-1) < cleanup.STANCE_SPEED
+    slow = np.linalg.norm(frames.body_linvel[:, feet], axis=-1) < stance_speed
     usual = float(np.median(own[slow])) if slow.any() else float(own.min())
     stance = slow & (own <= usual + STANCE_HEIGHT)
     target = stance_target(own - on, stance, own)
@@ -139,7 +150,8 @@ def fit_terrain(clip: Clip, humanoid: Humanoid, terrain: Terrain) -> tuple[Clip,
     if loop_opened:
         fixed = replace(fixed, loop=False)
     after = cleanup.foot_contact(fixed, humanoid)
-    fit = TerrainFit(at_keys, stance, ground, _worst(on, slow), _worst(after.height, after.stance), loop_opened)
+    after_worst = _worst(after.height, after.speed < stance_speed)
+    fit = TerrainFit(at_keys, stance, ground, _worst(on, slow), after_worst, loop_opened, stance_speed)
     return fixed, fit
 
 
