@@ -311,6 +311,21 @@ PROTOCOL = ("**Protocol.** Every episode plays its whole horizon (the frames abo
             "(PHC/UHC), to be read with the success rate.")  # fmt: skip
 
 
+# The training logs' curves results.json keeps, so that a later report (a parity against another method's new runs)
+# can be computed without the run directories.
+RESULT_CURVES = ("eval/mpjpe_g", "eval/mpjpe_l", "eval/survival", "eval/success")
+
+
+def _curves(run: Run) -> dict[str, dict[str, list]]:
+    """The run's logged evaluations of :data:`RESULT_CURVES`: samples, training wall-clock (s) and value of each."""
+    out = {}
+    for key in RESULT_CURVES:
+        samples, seconds, values = run.curve(key)
+        if values:
+            out[key] = {"samples": samples, "seconds": seconds, "values": values}
+    return out
+
+
 def _results_json(report: Report) -> dict[str, Any]:
     return {
         "motions": report.motions, "protocol": {"starts_per_clip": report.protocol.starts_per_clip,
@@ -320,6 +335,7 @@ def _results_json(report: Report) -> dict[str, Any]:
                   "checkpoint": portable_path(str(run.checkpoint.absolute())),
                   "clips": res.clips, "overall": res.overall,
                   "per_clip": {k: v.tolist() for k, v in res.per_clip.items()},
+                  "curves": _curves(run),
                   **({"pushed": {"overall": report.pushed[i].overall,
                                  "per_clip": {k: v.tolist() for k, v in report.pushed[i].per_clip.items()}}}
                      if report.pushed else {})}

@@ -273,15 +273,8 @@ def load_dataset(path: str | Path, humanoid: Humanoid) -> MotionLibrary:
     where = str(path)
     try:
         with h5py.File(path, "r") as f:
-            fmt = hdf5.attr(f, "format", "str", where) if "format" in f.attrs else None
-            if fmt != DATASET_FORMAT:
-                raise MotionFormatError(f"{path}: not a motion dataset (format {fmt!r})")
-            version = hdf5.attr(f, "version", "int", where)
-            if version not in READABLE_VERSIONS:
-                raise MotionFormatError(
-                    f"{path}: motion dataset version {version}, this code reads"
-                    f" {' and '.join(map(str, READABLE_VERSIONS))}; rebuild it with `mimic-motions convert`"
-                )
+            version = hdf5.check_header(f, where, DATASET_FORMAT, "motion dataset", READABLE_VERSIONS,
+                                        "; rebuild it with `mimic-motions convert`")  # fmt: skip
             control_hz = hdf5.attr(f, "control_hz", "number", where)
             if not np.isclose(control_hz, humanoid.physics.control_hz):
                 raise MotionFormatError(

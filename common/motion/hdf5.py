@@ -62,6 +62,26 @@ def attr(obj: h5py.HLObject, name: str, kind: str, where: str) -> Any:
     return {"str": str, "bool": bool, "int": int, "number": float}[kind](value)
 
 
+def check_header(f: h5py.File, where: str, fmt: str, what: str, versions: tuple[int, ...], hint: str = "") -> int:
+    """The file's ``format`` and ``version`` attributes, checked: ``format`` must be ``fmt`` and ``version`` one of
+    ``versions`` (``what`` names the kind of file in messages: "clip pack"; ``hint`` ends the version message).
+
+    Returns:
+        The file's version.
+
+    Raises:
+        MotionFormatError: another format (or none), or a version this code does not read.
+    """
+    found = attr(f, "format", "str", where) if "format" in f.attrs else None
+    if found != fmt:
+        raise MotionFormatError(f"{where}: not a {what} (format {found!r})")
+    version = attr(f, "version", "int", where)
+    if version not in versions:
+        raise MotionFormatError(f"{where}: {what} version {version}, this code reads "
+                                f"{' and '.join(map(str, versions))}{hint}")  # fmt: skip
+    return version
+
+
 def array(group: h5py.Group, name: str, where: str, shape: tuple[int | None, ...], max_rows: int) -> np.ndarray:
     """The float64 values of dataset ``name`` in ``group``, checked before reading.
 

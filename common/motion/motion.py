@@ -300,13 +300,8 @@ def read_clip_pack(path: str | Path) -> list[Clip]:
     check_regular_file(path, MotionFormatError, max_bytes=None)
     try:
         with h5py.File(path, "r") as f:
-            fmt = hdf5.attr(f, "format", "str", str(path)) if "format" in f.attrs else None
-            if fmt != CLIP_PACK_FORMAT:
-                raise MotionFormatError(f"{path}: not a clip pack (format {fmt!r})")
-            version = hdf5.attr(f, "version", "int", str(path))
-            if version not in (CLIP_PACK_VERSION, CLIP_PACK_TERRAIN_VERSION):
-                raise MotionFormatError(f"{path}: clip pack version {version}, this code reads {CLIP_PACK_VERSION} "
-                                        f"and {CLIP_PACK_TERRAIN_VERSION}")  # fmt: skip
+            version = hdf5.check_header(f, str(path), CLIP_PACK_FORMAT, "clip pack",
+                                        (CLIP_PACK_VERSION, CLIP_PACK_TERRAIN_VERSION))  # fmt: skip
             terrains = f.get(TERRAIN_GROUP) if version == CLIP_PACK_TERRAIN_VERSION else None
             terrains = terrains if isinstance(terrains, h5py.Group) else None
             keys = sorted(k for k in f.keys() if terrains is None or k != TERRAIN_GROUP)

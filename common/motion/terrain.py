@@ -212,12 +212,7 @@ def read_terrain_file(path: str | Path) -> Terrain:
     where = str(path)
     try:
         with h5py.File(path, "r") as f:
-            fmt = hdf5.attr(f, "format", "str", where) if "format" in f.attrs else None
-            if fmt != SIDECAR_FORMAT:
-                raise MotionFormatError(f"{path}: not a terrain file (format {fmt!r})")
-            version = hdf5.attr(f, "version", "int", where)
-            if version != SIDECAR_VERSION:
-                raise MotionFormatError(f"{path}: terrain file version {version}, this code reads {SIDECAR_VERSION}")
+            hdf5.check_header(f, where, SIDECAR_FORMAT, "terrain file", (SIDECAR_VERSION,))
             return read_terrain(f.get("terrain"), where)
     except OSError as e:
         raise MotionFormatError(f"{path}: not a readable HDF5 file ({e})") from None

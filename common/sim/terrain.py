@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from common.character.humanoid import BodyGeometry, Humanoid, apply_physics
-from common.maths.rotations import quat_rotate, quat_yaw
+from common.maths.rotations import quat_yaw
 from common.motion.library import MotionLibrary
 from common.motion.terrain import OFF_GRID_DROP, Terrain
 
@@ -155,11 +155,8 @@ def heightmap(terrains: ClipTerrains, clip: np.ndarray, root_pos: np.ndarray, ro
 
 def support_clearance(terrains: ClipTerrains, clip: np.ndarray, geometry: BodyGeometry, body_pos: np.ndarray,
                       body_rot: np.ndarray) -> np.ndarray:  # fmt: skip
-    """How far every body's collision geom is above its clip's ground: the least, over the geom's support points
-    (sphere centre, capsule ends, box corners), of the point's height less the geom's radius less the ground's height
-    under the point (:meth:`ClipTerrains.height`). For spheres and capsules the vertical gap under their lowest point
-    (on a slope of angle a that overstates the gap normal to it by radius (1 / cos a - 1): 1.1 mm for a 5 cm foot at
-    12 deg), for boxes under their lowest corner; negative inside the ground.
+    """How far every body's collision geom is above its clip's ground
+    (:meth:`~common.character.humanoid.BodyGeometry.clearance` over :meth:`ClipTerrains.height`).
 
     Args:
         terrains: The clips' terrains.
@@ -171,9 +168,7 @@ def support_clearance(terrains: ClipTerrains, clip: np.ndarray, geometry: BodyGe
     Returns:
         Clearance (m). Shape: (N, B).
     """
-    points = body_pos[:, :, None] + quat_rotate(body_rot[:, :, None], geometry.points)  # (N, B, 8, 3)
-    ground = terrains.height(clip, points[..., 0], points[..., 1])
-    return (points[..., 2] - ground).min(axis=-1) - geometry.radius
+    return geometry.clearance(body_pos, body_rot, lambda x, y: terrains.height(clip, x, y))
 
 
 def ground_clearance(terrains: ClipTerrains, clip: np.ndarray, geometry: BodyGeometry, body_pos: np.ndarray,

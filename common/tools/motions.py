@@ -42,7 +42,7 @@ from common.config import ConfigError
 from common.motion.dataset import load_motions, resolve_clips, save_dataset
 from common.motion.library import MotionLibrary
 from common.motion.motion import MotionFormatError
-from common.motion.motion_import.cleanup import STANCE_SPEED, clearance
+from common.motion.motion_import.cleanup import STANCE_SPEED, ground_of
 from common.motion.terrain import SIDECAR_SUFFIX, Terrain, check_terrain, read_terrain_file, sidecar_path
 
 
@@ -51,7 +51,7 @@ def summary(library: MotionLibrary, sources_fps: dict[str, float], humanoid: Hum
     lines = [f"{'clip':<20} {'frames':>6} {'duration':>9} {'src fps':>7} {'loop':>5} {'foot min':>9} {'foot max':>9}"]
     for i, clip in enumerate(library.clips):
         s = slice(library.start[i], library.start[i] + library.num_frames[i])
-        low = clearance(geometry, library.frames.body_pos[s], library.frames.body_rot[s], clip.terrain)
+        low = geometry.clearance(library.frames.body_pos[s], library.frames.body_rot[s], ground_of(clip.terrain))
         low = low[:, humanoid.foot_indices]
         low = low.min(axis=-1)
         lines.append(

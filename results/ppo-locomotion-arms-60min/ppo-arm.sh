@@ -11,7 +11,7 @@ sets=(--set gym.threads=1 --set train.torch_threads=1 --set train.eval.threads=1
       --set gym.num_envs=1024)
 command=.venv/bin/train-ppo
 case $arm in
-  large) sets+=(--set ppo.minibatch_size=2048) ;;
+  large) sets+=(--set ppo.minibatch_size=2048 --set ppo.schedule=fixed) ;;
   adaptive) sets+=(--set ppo.minibatch_size=2048 --set ppo.schedule=adaptive) ;;
   rsl) command=.venv/bin/train-rsl-rl ;;  # num_mini_batches 4 (its config): 8192 / 4 = 2048 per minibatch
   *) echo "unknown arm $arm"; exit 2 ;;

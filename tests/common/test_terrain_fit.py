@@ -230,12 +230,12 @@ def test_the_fit_measures_feet_as_the_judge_does(humanoid: Humanoid) -> None:
     frames = MotionLibrary.from_clips([resolve_clips(["walk"])[0]], humanoid).frames
     terrain = stairs("up", steps=4, step_height=0.12, step_depth=0.3, seed=0)
     geometry = BodyGeometry(humanoid)
-    ours = cleanup.clearance(geometry, frames.body_pos, frames.body_rot, terrain)
+    ours = geometry.clearance(frames.body_pos, frames.body_rot, terrain.height_at)
     judge = support_clearance(ClipTerrains([terrain]), np.zeros(len(frames.body_pos), dtype=np.int64), geometry,
                               frames.body_pos, frames.body_rot)  # fmt: skip
     np.testing.assert_allclose(ours, judge, rtol=0, atol=1e-12)
     flat = Terrain(np.zeros((41, 81)), 0.05, np.array([-1.0, -1.0]))
-    np.testing.assert_array_equal(cleanup.clearance(geometry, frames.body_pos, frames.body_rot, flat),
+    np.testing.assert_array_equal(geometry.clearance(frames.body_pos, frames.body_rot, flat.height_at),
                                   geometry.lowest_points(frames.body_pos, frames.body_rot))  # fmt: skip
 
 

@@ -273,7 +273,7 @@ def test_the_default_config_is_rsl_rls_defaults_but_the_listed_differences() -> 
         plain = {k: v for k, v in to_dict(section).items() if k != "distribution"}
         assert {k: v for k, v in plain.items() if list(np.atleast_1d(mlp[k])) != list(np.atleast_1d(v))} == differs
     assert {k: v for k, v in to_dict(cfg.actor.distribution).items() if gauss[k] != v} == {}
-    assert cfg.batch_size // cfg.algorithm.num_mini_batches == 512  # our PPO's minibatch, by rsl_rl's 4 minibatches
+    assert cfg.batch_size // cfg.algorithm.num_mini_batches == 2048  # our PPO's minibatch, by rsl_rl's 4 minibatches
 
 
 def test_the_default_trains_on_our_ppos_task_with_its_samples_per_update() -> None:

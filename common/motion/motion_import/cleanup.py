@@ -7,6 +7,7 @@ facing +X with its left at +Y). The ground fix measures heights above the flat f
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -107,44 +108,10 @@ class FootContact:
         return self.speed < STANCE_SPEED
 
 
-def support_points(geometry: BodyGeometry, body_pos: np.ndarray, body_rot: np.ndarray) -> np.ndarray:
-    """World x, y, z of every body's support points (sphere centre, capsule ends, box corners).
-
-    z is computed with the arithmetic of :meth:`~common.character.humanoid.BodyGeometry.lowest_points`, so that over a
-    ground of height 0 :func:`clearance` equals it bit for bit (the ground fix on a flat terrain is the floor's).
-
-    Args:
-        body_pos: Shape: (..., B, 3).
-        body_rot: Shape: (..., B, 4), (w, x, y, z).
-
-    Returns:
-        Shape: (3, ..., B, 8).
-    """
-    w, x, y, z = (body_rot[..., i] for i in range(4))
-    rows = (
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-    )
-    return np.stack([body_pos[..., a, None] + np.einsum("...bk,bpk->...bp", row, geometry.points)
-                     for a, row in enumerate(rows)])  # fmt: skip
-
-
-def clearance(geometry: BodyGeometry, body_pos: np.ndarray, body_rot: np.ndarray,
-              terrain: Terrain | None) -> np.ndarray:  # fmt: skip
-    """Height of each body's lowest surface point above the ground: the floor (``terrain`` None, as
-    :meth:`~common.character.humanoid.BodyGeometry.lowest_points`) or the least, over the body's support points, of
-    the point's height above the terrain under it, less the geom's radius: the judge's measure
-    (:func:`common.sim.terrain.support_clearance`, equal to rounding; ``common/motion`` does not import
-    ``common/sim``), computed here with ``lowest_points``' arithmetic (:func:`support_points`).
-
-    Returns:
-        Shape: (..., B).
-    """
-    if terrain is None:
-        return geometry.lowest_points(body_pos, body_rot)
-    px, py, pz = support_points(geometry, body_pos, body_rot)
-    return (pz - terrain.height_at(px, py)).min(axis=-1) - geometry.radius
+def ground_of(terrain: Terrain | None) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
+    """The ground :meth:`~common.character.humanoid.BodyGeometry.clearance` measures from: the terrain's height, or
+    None for the flat floor."""
+    return None if terrain is None else terrain.height_at
 
 
 def foot_contact(clip: Clip, humanoid: Humanoid) -> FootContact:
@@ -152,7 +119,7 @@ def foot_contact(clip: Clip, humanoid: Humanoid) -> FootContact:
     kinematics (played one-shot)."""
     library = MotionLibrary.from_clips([replace(clip, loop=False)], humanoid)
     frames = library.frames
-    height = clearance(BodyGeometry(humanoid), frames.body_pos, frames.body_rot, clip.terrain)
+    height = BodyGeometry(humanoid).clearance(frames.body_pos, frames.body_rot, ground_of(clip.terrain))
     height = height[:, humanoid.foot_indices]
     speed = np.linalg.norm(frames.body_linvel[:, humanoid.foot_indices], axis=-1)
     return FootContact(height, speed)
@@ -186,8 +153,8 @@ def fix_ground(clip: Clip, humanoid: Humanoid) -> tuple[Clip, GroundFix]:
     stance foot is still more than :data:`GROUND_TOLERANCE` under the floor (:func:`lift_out_of_floor`).
 
     The floor is the clip's ground: the flat floor at height 0, or the clip's terrain (heights above it measured
-    under each support point of a foot, :func:`clearance`). On a terrain flat at height 0 the result equals the flat
-    floor's bit for bit.
+    under each support point of a foot, :meth:`~common.character.humanoid.BodyGeometry.clearance`). On a terrain
+    flat at height 0 the result equals the flat floor's bit for bit.
 
     Returns:
         (the fixed clip, what was done).

@@ -135,8 +135,9 @@ def fit_terrain(clip: Clip, humanoid: Humanoid, terrain: Terrain,
     geometry = BodyGeometry(humanoid)
     check_extent(clip, humanoid, geometry, frames.body_pos, frames.body_rot, terrain)
     feet = humanoid.foot_indices
-    own = cleanup.clearance(geometry, frames.body_pos, frames.body_rot, clip.terrain)[:, feet]  # the floor, mostly
-    on = cleanup.clearance(geometry, frames.body_pos, frames.body_rot, terrain)[:, feet]
+    # the floor, mostly
+    own = geometry.clearance(frames.body_pos, frames.body_rot, cleanup.ground_of(clip.terrain))[:, feet]
+    on = geometry.clearance(frames.body_pos, frames.body_rot, terrain.height_at)[:, feet]
     slow = np.linalg.norm(frames.body_linvel[:, feet], axis=-1) < stance_speed
     usual = float(np.median(own[slow])) if slow.any() else float(own.min())
     stance = slow & (own <= usual + STANCE_HEIGHT)
@@ -199,7 +200,7 @@ def check_extent(clip: Clip, humanoid: Humanoid, geometry: BodyGeometry, body_po
         ValueError: ``"<clip>: leaves the terrain: its <body> reaches (x, y) at t s, beyond the terrain's x a..b,
             y c..d m"``.
     """
-    px, py, _ = cleanup.support_points(geometry, body_pos, body_rot)  # (T, B, 8) each
+    px, py, _ = geometry.support_points(body_pos, body_rot)  # (T, B, 8) each
     lo = terrain.origin
     hi = terrain.origin + terrain.size
     out = (px < lo[0]) | (px > hi[0]) | (py < lo[1]) | (py > hi[1])
